@@ -1,0 +1,54 @@
+"""The ``streamfix`` command: one sub-command per module in this package.
+
+Each sub-command module defines ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``. Modules are imported only when their command runs, so that
+``streamfix tap`` does not pay for scipy and ``streamfix clean`` not for zmq.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# command name -> module under streamfix.cli
+COMMANDS = {
+    "serve": "serve",
+    "clean": "clean",
+    "eval": "evaluate",
+    "replay": "replay",
+    "record": "record",
+    "tap": "tap",
+    "train-prior": "train_prior",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="streamfix", description="Real-time skeleton cleaning.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module_name in COMMANDS.items():
+        try:
+            module = importlib.import_module(f"streamfix.cli.{module_name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"streamfix.cli.{module_name}":
+                continue  # command not built yet
+            raise
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

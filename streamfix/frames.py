@@ -1,0 +1,49 @@
+"""One sensor frame of one stream: the unit that flows through the streaming layer.
+
+These are transport-agnostic: the streaming engine consumes and produces them, the
+wire module (``streamfix.transport.wire``) encodes them as msgpack, readers of
+recordings yield them. Units: positions in metres, times in integer nanoseconds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["BodyFrame", "SkeletonFrame"]
+
+
+@dataclass
+class BodyFrame:
+    """One tracked body in one frame.
+
+    ``positions`` ``(J, 3)`` float64 metres, NaN where the joint is missing;
+    ``confidence`` ``(J,)`` in [0, 1] (1 tracked, 0.5 inferred, 0 missing);
+    ``recovered`` ``(J,)`` bool on cleaned output: True where the value was
+    recovered (filled or replaced) rather than observed. None on raw input.
+    """
+
+    body_id: int
+    positions: np.ndarray
+    confidence: np.ndarray
+    recovered: np.ndarray | None = None
+
+
+@dataclass
+class SkeletonFrame:
+    """All bodies of one stream at one sensor instant.
+
+    ``seq`` is the per-stream sequence number (consecutive, starting anywhere);
+    ``sensor_time_ns`` the sensor clock; ``publish_time_ns`` the wall clock when
+    published (0 until then); ``skeleton`` a registry name (see ``streamfix.skeletons``).
+    ``filled`` is True for a frame the service synthesised for a sensor frame that
+    never arrived (a timestamp gap): every joint in it is recovered.
+    """
+
+    stream_id: str
+    seq: int
+    sensor_time_ns: int
+    skeleton: str
+    bodies: list[BodyFrame] = field(default_factory=list)
+    publish_time_ns: int = 0
+    filled: bool = False

@@ -1,0 +1,1 @@
+"""The learned motion prior: temporal-convolution autoencoder (Lohit et al.) run with onnxruntime."""

@@ -1,0 +1,1 @@
+"""Transport: the msgpack wire format and ZeroMQ sockets."""
