@@ -1,0 +1,435 @@
+"""The streamfix wire format: msgpack messages on ZeroMQ topics (``protocol/SPEC.md``).
+
+Every ZeroMQ message is two frames, ``[topic, payload]``. The topic is
+``sf/<kind>/<stream>`` with kind one of ``raw`` (sensor input), ``live`` (low-latency
+cleaned output), ``clean`` (refined cleaned output) or ``meta`` (skeleton message).
+The payload is one msgpack map using only maps, arrays, integers, floats, strings,
+booleans and binary blobs (no extension types), so MessagePack-CSharp, msgpack-c and
+Python decode it without custom code. Joint arrays are blobs of little-endian float32.
+
+Frame message (``type == "frame"``)::
+
+    {"v": 1, "type": "frame", "stream": str, "seq": uint, "t_sensor_ns": int,
+     "t_publish_ns": int, "skeleton": str, "joints": J, "filled": bool,
+     "bodies": [{"id": int, "pos": bin(J*3*4), "conf": bin(J*4), "rec": bin(J)?}, ...]}
+
+Skeleton message (``type == "skeleton"``, topic ``sf/meta/<stream>``)::
+
+    {"v": 1, "type": "skeleton", "stream": str, "skeleton": str, "joint_names": [str],
+     "bones": [[parent, child], ...], "rate_hz": float, "units": "m", "t_publish_ns": int}
+
+Decoding is strict about what it needs and lenient about what it does not: a newer
+major version, a wrong blob length, an unknown skeleton or a truncated payload raise
+:class:`WireError` (the caller counts and skips the message); unknown extra keys are
+ignored; NaN/inf coordinates are missing joints (NaN position, confidence 0).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Mapping, Union
+
+import msgpack
+import numpy as np
+
+from ..frames import BodyFrame, SkeletonFrame
+from ..skeletons import Skeleton, get_skeleton
+
+__all__ = [
+    "PROTOCOL_VERSION",
+    "KINDS",
+    "TOPIC_ROOT",
+    "WireError",
+    "SkeletonMessage",
+    "encode_frame",
+    "decode_frame",
+    "encode_skeleton_message",
+    "decode_skeleton_message",
+    "decode_message",
+    "message_type",
+    "topic_for",
+    "topic_prefix",
+    "parse_topic",
+    "resolve_topic_arg",
+    "check_stream_id",
+]
+
+PROTOCOL_VERSION = 1
+"""Major protocol version this module writes and the newest it reads."""
+
+TOPIC_ROOT = b"sf/"
+KINDS = ("raw", "live", "clean", "meta")
+"""Topic kinds: sensor input, low-latency output, refined output, skeleton messages."""
+
+_STREAM_RE = re.compile(r"^[A-Za-z0-9_.:\-]{1,64}$")
+_F32 = np.dtype("<f4")
+_MAX_JOINTS = 1024
+_MAX_BODIES = 64
+
+
+class WireError(ValueError):
+    """A message that cannot be decoded; ``reason`` is a short counter key.
+
+    Reasons: ``garbage`` (not msgpack / not a map), ``truncated``, ``version``
+    (newer major version), ``type`` (unknown or unexpected message type; a subscriber
+    ignores unknown types), ``skeleton`` (unknown skeleton), ``joints`` (joint count or
+    blob length does not match), ``field`` (a required field is missing or mistyped).
+    """
+
+    def __init__(self, message: str, reason: str = "field") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+@dataclass
+class SkeletonMessage:
+    """Decoded skeleton/metadata message: what a subscriber needs to decode frames."""
+
+    stream_id: str
+    skeleton: Skeleton
+    rate_hz: float
+    units: str = "m"
+    publish_time_ns: int = 0
+
+
+# --------------------------------------------------------------------------- topics
+
+def check_stream_id(stream_id: str) -> str:
+    """Return ``stream_id`` if it is 1-64 chars of ``[A-Za-z0-9_.:-]``, else WireError."""
+    if not isinstance(stream_id, str) or not _STREAM_RE.match(stream_id):
+        raise WireError(
+            f"stream id {stream_id!r} is not 1-64 characters of letters, digits, '_', '.', ':', '-'",
+            "field",
+        )
+    return stream_id
+
+
+def topic_prefix(kind: str) -> bytes:
+    """ZeroMQ subscription prefix for every stream of one kind, e.g. ``b"sf/live/"``."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown topic kind {kind!r}; expected one of {', '.join(KINDS)}")
+    return TOPIC_ROOT + kind.encode() + b"/"
+
+
+def topic_for(kind: str, stream_id: str) -> bytes:
+    """Topic of one stream, e.g. ``topic_for("live", "kinect0") == b"sf/live/kinect0"``."""
+    return topic_prefix(kind) + check_stream_id(stream_id).encode()
+
+
+def parse_topic(topic: bytes) -> tuple[str, str]:
+    """``b"sf/live/kinect0"`` -> ``("live", "kinect0")``; WireError if not a streamfix topic."""
+    try:
+        text = bytes(topic).decode("ascii")
+    except (UnicodeDecodeError, TypeError):
+        raise WireError(f"topic {topic!r} is not ASCII", "field") from None
+    parts = text.split("/")
+    if len(parts) != 3 or parts[0] != "sf" or parts[1] not in KINDS or not _STREAM_RE.match(parts[2]):
+        raise WireError(f"topic {text!r} is not sf/<raw|live|clean|meta>/<stream>", "field")
+    return parts[1], parts[2]
+
+
+def resolve_topic_arg(arg: str) -> bytes:
+    """A command-line ``--topic``: a kind (``live``), ``kind/stream``, or a raw prefix."""
+    if arg in KINDS:
+        return topic_prefix(arg)
+    head, sep, rest = arg.partition("/")
+    if sep and head in KINDS:
+        return topic_prefix(head) + rest.encode()
+    return arg.encode()
+
+
+# --------------------------------------------------------------------------- encode
+
+def _now_ns() -> int:
+    import time
+
+    return time.time_ns()
+
+
+def encode_frame(frame: SkeletonFrame, *, publish_time_ns: int | None = None) -> bytes:
+    """Encode one frame as a msgpack ``frame`` message.
+
+    ``publish_time_ns`` overrides ``frame.publish_time_ns`` (pass ``time.time_ns()``
+    when publishing). Positions go out as float32 metres, NaN for missing joints.
+    """
+    bodies = frame.bodies
+    n_joints = -1
+    out_bodies = []
+    for b in bodies:
+        pos = np.asarray(b.positions)
+        if pos.ndim != 2 or pos.shape[1] != 3:
+            raise WireError(f"body {b.body_id}: positions must be (J, 3), got {pos.shape}", "joints")
+        if n_joints < 0:
+            n_joints = pos.shape[0]
+        elif pos.shape[0] != n_joints:
+            raise WireError(
+                f"body {b.body_id}: has {pos.shape[0]} joints, other bodies in the frame have {n_joints}",
+                "joints",
+            )
+        conf = np.asarray(b.confidence)
+        if conf.shape != (n_joints,):
+            raise WireError(
+                f"body {b.body_id}: confidence shape {conf.shape}, expected ({n_joints},)", "joints"
+            )
+        body = {
+            "id": int(b.body_id),
+            "pos": pos.astype(_F32, copy=False).tobytes(),
+            "conf": conf.astype(_F32, copy=False).tobytes(),
+        }
+        if b.recovered is not None:
+            rec = np.asarray(b.recovered)
+            if rec.shape != (n_joints,):
+                raise WireError(
+                    f"body {b.body_id}: recovered shape {rec.shape}, expected ({n_joints},)", "joints"
+                )
+            body["rec"] = rec.astype(np.uint8, copy=False).tobytes()
+        out_bodies.append(body)
+    if n_joints < 0:
+        try:
+            n_joints = get_skeleton(frame.skeleton).n_joints
+        except KeyError:
+            n_joints = 0
+    msg = {
+        "v": PROTOCOL_VERSION,
+        "type": "frame",
+        "stream": frame.stream_id,
+        "seq": int(frame.seq),
+        "t_sensor_ns": int(frame.sensor_time_ns),
+        "t_publish_ns": int(frame.publish_time_ns if publish_time_ns is None else publish_time_ns),
+        "skeleton": frame.skeleton,
+        "joints": n_joints,
+        "filled": bool(frame.filled),
+        "bodies": out_bodies,
+    }
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+def encode_skeleton_message(
+    skeleton: Skeleton,
+    rate_hz: float,
+    stream_id: str,
+    *,
+    publish_time_ns: int | None = None,
+    units: str = "m",
+) -> bytes:
+    """Encode the skeleton/metadata message of one stream (topic ``sf/meta/<stream>``)."""
+    msg = {
+        "v": PROTOCOL_VERSION,
+        "type": "skeleton",
+        "stream": check_stream_id(stream_id),
+        "skeleton": skeleton.name,
+        "joint_names": list(skeleton.joint_names),
+        "bones": [[int(a), int(b)] for a, b in skeleton.bones],
+        "rate_hz": float(rate_hz),
+        "units": units,
+        "t_publish_ns": int(_now_ns() if publish_time_ns is None else publish_time_ns),
+    }
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+# --------------------------------------------------------------------------- decode
+
+def _unpack(payload: bytes) -> dict:
+    try:
+        msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    except msgpack.ExtraData:
+        raise WireError(
+            f"payload of {len(payload)} bytes has trailing bytes after the msgpack message", "garbage"
+        ) from None
+    except (ValueError, msgpack.UnpackException, TypeError) as exc:
+        text = str(exc) or type(exc).__name__
+        if "incomplete" in text.lower() or "insufficient" in text.lower():
+            raise WireError(f"payload truncated: {len(payload)} bytes end inside a msgpack value", "truncated") from None
+        raise WireError(f"payload of {len(payload)} bytes is not valid msgpack ({text})", "garbage") from None
+    except Exception as exc:  # msgpack may raise FormatError/StackError subclasses
+        text = str(exc) or type(exc).__name__
+        raise WireError(f"payload of {len(payload)} bytes is not valid msgpack ({text})", "garbage") from None
+    if not isinstance(msg, dict):
+        raise WireError(f"payload is a msgpack {type(msg).__name__}, expected a map", "garbage")
+    v = msg.get("v")
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise WireError(f"field 'v' (protocol version) is missing or not an integer: {v!r}", "field")
+    if v > PROTOCOL_VERSION:
+        raise WireError(f"protocol version {v} is newer than supported {PROTOCOL_VERSION}", "version")
+    if v < 1:
+        raise WireError(f"protocol version {v} is not a valid version (versions start at 1)", "version")
+    return msg
+
+
+def _field(msg: dict, key: str, types, what: str):
+    value = msg.get(key)
+    if not isinstance(value, types) or (isinstance(value, bool) and bool not in _tuple(types)):
+        if key not in msg:
+            raise WireError(f"field {key!r} ({what}) is missing", "field")
+        raise WireError(f"field {key!r} ({what}) has {type(value).__name__} {value!r:.40}, expected {what}", "field")
+    return value
+
+
+def _tuple(types) -> tuple:
+    return types if isinstance(types, tuple) else (types,)
+
+
+def message_type(payload: bytes) -> str:
+    """The ``type`` of a message after version checks (``"frame"``, ``"skeleton"``, ...)."""
+    return _field(_unpack(payload), "type", str, "a string")
+
+
+def _lookup_skeleton(name: str, skeletons: Mapping[str, Skeleton] | None) -> Skeleton:
+    if skeletons is not None:
+        found = skeletons.get(name)
+        if found is not None:
+            return found
+    try:
+        return get_skeleton(name)
+    except KeyError:
+        raise WireError(
+            f"unknown skeleton {name!r} (not in the registry and no skeleton message seen for it)",
+            "skeleton",
+        ) from None
+
+
+def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> SkeletonFrame:
+    mtype = _field(msg, "type", str, "a string")
+    if mtype != "frame":
+        raise WireError(f"expected message type 'frame', got {mtype!r}", "type")
+    stream = _field(msg, "stream", str, "a string")
+    if not _STREAM_RE.match(stream):
+        raise WireError(f"stream id {stream!r} is not 1-64 characters of [A-Za-z0-9_.:-]", "field")
+    seq = _field(msg, "seq", int, "a non-negative integer")
+    if seq < 0:
+        raise WireError(f"field 'seq' is {seq}, expected a non-negative integer", "field")
+    t_sensor = _field(msg, "t_sensor_ns", int, "an integer (ns)")
+    t_pub = _field(msg, "t_publish_ns", int, "an integer (ns)")
+    name = _field(msg, "skeleton", str, "a string")
+    n_joints = _field(msg, "joints", int, "a non-negative integer")
+    filled = _field(msg, "filled", bool, "a boolean")
+    bodies_raw = _field(msg, "bodies", list, "an array")
+    skeleton = _lookup_skeleton(name, skeletons)
+    if bodies_raw and n_joints != skeleton.n_joints:
+        raise WireError(
+            f"frame declares {n_joints} joints but skeleton {name!r} has {skeleton.n_joints}", "joints"
+        )
+    if len(bodies_raw) > _MAX_BODIES:
+        raise WireError(f"frame has {len(bodies_raw)} bodies, more than the limit {_MAX_BODIES}", "field")
+    J = skeleton.n_joints
+    bodies: list[BodyFrame] = []
+    seen: set[int] = set()
+    for i, b in enumerate(bodies_raw):
+        if not isinstance(b, dict):
+            raise WireError(f"body {i}: is a {type(b).__name__}, expected a map", "field")
+        bid = b.get("id")
+        if not isinstance(bid, int) or isinstance(bid, bool):
+            raise WireError(f"body {i}: field 'id' is missing or not an integer: {bid!r:.40}", "field")
+        if bid in seen:
+            raise WireError(f"body {i}: duplicate body id {bid}", "field")
+        seen.add(bid)
+        pos_b = b.get("pos")
+        if not isinstance(pos_b, bytes):
+            raise WireError(f"body {bid}: field 'pos' is missing or not a binary blob", "field")
+        if len(pos_b) != J * 12:
+            raise WireError(
+                f"body {bid}: positions blob has {len(pos_b)} bytes, expected {J * 12} "
+                f"({J} joints x 3 x float32)",
+                "joints",
+            )
+        conf_b = b.get("conf")
+        if not isinstance(conf_b, bytes):
+            raise WireError(f"body {bid}: field 'conf' is missing or not a binary blob", "field")
+        if len(conf_b) != J * 4:
+            raise WireError(
+                f"body {bid}: confidence blob has {len(conf_b)} bytes, expected {J * 4} "
+                f"({J} joints x float32)",
+                "joints",
+            )
+        positions = np.frombuffer(pos_b, dtype=_F32).astype(np.float64).reshape(J, 3)
+        confidence = np.frombuffer(conf_b, dtype=_F32).astype(np.float64)
+        # NaN confidence means unknown -> missing; clip the rest into [0, 1].
+        confidence = np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
+        bad = ~np.isfinite(positions).all(axis=1)
+        if bad.any():
+            positions[bad] = np.nan
+            confidence[bad] = 0.0
+        recovered = None
+        rec_b = b.get("rec")
+        if rec_b is not None:
+            if not isinstance(rec_b, bytes):
+                raise WireError(f"body {bid}: field 'rec' is not a binary blob", "field")
+            if len(rec_b) != J:
+                raise WireError(
+                    f"body {bid}: recovered blob has {len(rec_b)} bytes, expected {J} ({J} joints x uint8)",
+                    "joints",
+                )
+            recovered = np.frombuffer(rec_b, dtype=np.uint8) != 0
+        bodies.append(BodyFrame(bid, positions, confidence, recovered))
+    return SkeletonFrame(
+        stream_id=stream,
+        seq=seq,
+        sensor_time_ns=t_sensor,
+        skeleton=name,
+        bodies=bodies,
+        publish_time_ns=t_pub,
+        filled=filled,
+    )
+
+
+def decode_frame(payload: bytes, skeletons: Mapping[str, Skeleton] | None = None) -> SkeletonFrame:
+    """Decode a ``frame`` message; raises :class:`WireError` saying what is wrong.
+
+    ``skeletons`` maps skeleton names to layouts learned from skeleton messages; names
+    not in it are looked up in the registry (``streamfix.skeletons``).
+    """
+    return _frame_from_map(_unpack(payload), skeletons)
+
+
+def _skeleton_from_map(msg: dict) -> SkeletonMessage:
+    mtype = _field(msg, "type", str, "a string")
+    if mtype != "skeleton":
+        raise WireError(f"expected message type 'skeleton', got {mtype!r}", "type")
+    stream = _field(msg, "stream", str, "a string")
+    if not _STREAM_RE.match(stream):
+        raise WireError(f"stream id {stream!r} is not 1-64 characters of [A-Za-z0-9_.:-]", "field")
+    name = _field(msg, "skeleton", str, "a string")
+    names = _field(msg, "joint_names", list, "an array of strings")
+    if not all(isinstance(n, str) for n in names):
+        raise WireError("field 'joint_names' holds a non-string", "field")
+    if len(names) > _MAX_JOINTS:
+        raise WireError(f"skeleton has {len(names)} joints, more than the limit {_MAX_JOINTS}", "joints")
+    bones = _field(msg, "bones", list, "an array of [parent, child] pairs")
+    for bone in bones:
+        if not (isinstance(bone, list) and len(bone) == 2 and all(isinstance(x, int) and not isinstance(x, bool) for x in bone)):
+            raise WireError(f"bone {bone!r:.40} is not a [parent, child] pair of integers", "field")
+    rate = _field(msg, "rate_hz", (int, float), "a number (Hz)")
+    if not (np.isfinite(rate) and rate > 0):
+        raise WireError(f"field 'rate_hz' is {rate}, expected a positive number", "field")
+    units = msg.get("units", "m")
+    if units != "m":
+        raise WireError(f"field 'units' is {units!r}, expected 'm'", "field")
+    t_pub = msg.get("t_publish_ns", 0)
+    if not isinstance(t_pub, int):
+        raise WireError(f"field 't_publish_ns' is {t_pub!r:.40}, expected an integer (ns)", "field")
+    try:
+        skeleton = Skeleton(name, tuple(names), tuple(tuple(b) for b in bones))
+    except ValueError as exc:
+        raise WireError(str(exc), "field") from None
+    return SkeletonMessage(stream, skeleton, float(rate), units, t_pub)
+
+
+def decode_skeleton_message(payload: bytes) -> SkeletonMessage:
+    """Decode a ``skeleton`` message into a :class:`SkeletonMessage`."""
+    return _skeleton_from_map(_unpack(payload))
+
+
+def decode_message(
+    payload: bytes, skeletons: Mapping[str, Skeleton] | None = None
+) -> Union[SkeletonFrame, SkeletonMessage]:
+    """Decode any message: a :class:`SkeletonFrame` or a :class:`SkeletonMessage`.
+
+    An unknown ``type`` raises WireError with reason ``type`` (subscribers ignore it).
+    """
+    msg = _unpack(payload)
+    mtype = _field(msg, "type", str, "a string")
+    if mtype == "frame":
+        return _frame_from_map(msg, skeletons)
+    if mtype == "skeleton":
+        return _skeleton_from_map(msg)
+    raise WireError(f"unknown message type {mtype!r} (known: 'frame', 'skeleton')", "type")
