@@ -1,0 +1,162 @@
+"""Bone-length isometry of Yang et al. (2019): Eq. (5), (16)-(20).
+
+Positions here are ``(T, S, 3)`` in metres (``S`` joints); bones ``(B, 2)`` int
+(parent, child); bone lengths ``(B,)`` metres.
+
+Residual (Eq. 5/16), per frame t and bone h = (i, j):
+    r_th(N) = d^2(n_i^t, n_j^t) - l_h^2,     E_iso(N) = ||F(N)||^2.
+Jacobian: with u_th = n_i^t - n_j^t,  dr_th/dn_i^t = 2 u_th,  dr_th/dn_j^t = -2 u_th.
+J is block diagonal over frames (frame t's residuals depend only on frame t), so
+J^T J is block diagonal with ``3S x 3S`` blocks and the Gauss-Newton step of
+Eq. (20) splits into T independent systems, solved here in one batched call.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "bone_vectors",
+    "bone_lengths_per_frame",
+    "estimate_bone_lengths",
+    "isometry_residual",
+    "isometry_jacobian",
+    "incidence_matrix",
+    "gauss_newton_step",
+]
+
+
+def _bones(bones: np.ndarray, n_joints: int) -> np.ndarray:
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if b.size and (b.min() < 0 or b.max() >= n_joints):
+        raise ValueError(f"bones must index {n_joints} joints, got indices {b.min()}..{b.max()}")
+    return b
+
+
+def incidence_matrix(bones: np.ndarray, n_joints: int) -> np.ndarray:
+    """``(B, S)`` matrix M with +1 at the parent and -1 at the child: u = M n."""
+    b = _bones(bones, n_joints)
+    m = np.zeros((len(b), n_joints))
+    m[np.arange(len(b)), b[:, 0]] = 1.0
+    m[np.arange(len(b)), b[:, 1]] = -1.0
+    return m
+
+
+def bone_vectors(positions: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """``(T, B, 3)`` vectors u = n_parent - n_child (metres)."""
+    p = np.asarray(positions, dtype=np.float64)
+    b = _bones(bones, p.shape[-2])
+    return p[..., b[:, 0], :] - p[..., b[:, 1], :]
+
+
+def bone_lengths_per_frame(positions: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """``(T, B)`` Euclidean bone lengths d(n_i^t, n_j^t) in metres (NaN if an end is NaN)."""
+    return np.linalg.norm(bone_vectors(positions, bones), axis=-1)
+
+
+def estimate_bone_lengths(
+    positions: np.ndarray,
+    bones: np.ndarray,
+    observed: np.ndarray | None = None,
+    confidence: np.ndarray | None = None,
+) -> np.ndarray:
+    """Robust ``(B,)`` bone lengths (metres): per bone, the median over frames.
+
+    Uses only frames where both ends are observed (and, when ``confidence`` is given,
+    where both ends have the highest confidence available for that bone, e.g. tracked
+    rather than inferred). The median ignores up to half the frames being outliers.
+    A bone never observed gets NaN.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    b = _bones(bones, p.shape[1])
+    lengths = bone_lengths_per_frame(p, b)  # (T, B)
+    ok = np.isfinite(lengths)
+    if observed is not None:
+        obs = np.asarray(observed, dtype=bool)
+        if obs.shape != p.shape[:2]:
+            raise ValueError(f"observed must be {p.shape[:2]}, got {obs.shape}")
+        ok &= obs[:, b[:, 0]] & obs[:, b[:, 1]]
+    if confidence is not None:
+        conf = np.asarray(confidence, dtype=np.float64)
+        if conf.shape != p.shape[:2]:
+            raise ValueError(f"confidence must be {p.shape[:2]}, got {conf.shape}")
+        c = np.minimum(conf[:, b[:, 0]], conf[:, b[:, 1]])
+        c = np.where(ok, c, -np.inf)
+        best = c.max(axis=0, keepdims=True)
+        ok &= c >= best
+    vals = np.where(ok, lengths, np.nan)
+    out = np.full(len(b), np.nan)
+    seen = ok.any(axis=0)
+    if seen.any():
+        out[seen] = np.nanmedian(vals[:, seen], axis=0)
+    return out
+
+
+def isometry_residual(positions: np.ndarray, bones: np.ndarray, bone_lengths: np.ndarray) -> np.ndarray:
+    """F(N) of Eq. (16): ``(T, B)`` residuals r_th = d^2(n_i^t, n_j^t) - l_h^2 (m^2)."""
+    u = bone_vectors(positions, bones)
+    return np.einsum("tbc,tbc->tb", u, u) - np.asarray(bone_lengths, dtype=np.float64) ** 2
+
+
+def isometry_jacobian(positions: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """Dense per-frame Jacobian blocks ``(T, B, 3S)`` of F (Eq. 17), column = 3*joint + coord.
+
+    Reference implementation (tests, small cases); the solver never forms it.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    n_frames, n_joints, _ = p.shape
+    b = _bones(bones, n_joints)
+    u = bone_vectors(p, b)
+    jac = np.zeros((n_frames, len(b), n_joints, 3))
+    rows = np.arange(len(b))
+    jac[:, rows, b[:, 0], :] = 2.0 * u
+    jac[:, rows, b[:, 1], :] = -2.0 * u
+    return jac.reshape(n_frames, len(b), 3 * n_joints)
+
+
+def gauss_newton_step(
+    N: np.ndarray,
+    A: np.ndarray,
+    Z2: np.ndarray,
+    rho2: float,
+    gamma: float,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray,
+    incidence: np.ndarray | None = None,
+) -> np.ndarray:
+    """One Gauss-Newton update of the N-subproblem, Eq. (20); returns N + delta.
+
+        delta = (gamma J^T J + rho2 I)^-1 (-Z2 - rho2 (N - A) - gamma J^T F)
+
+    All of ``N, A, Z2`` are ``(T, S, 3)``. Per frame the ``3S x 3S`` inverse is applied
+    by the Woodbury identity with the ``B x B`` matrix K = rho2/gamma I + J J^T:
+        (gamma J^T J + rho2 I)^-1 g = (g - J^T K^-1 J g) / rho2,
+    and J J^T = 4 (M M^T) * (u u^T) (elementwise) with M the bone incidence matrix.
+    One batched ``np.linalg.solve`` over frames; no loop over frames.
+    Bones with a NaN length are ignored.
+    """
+    n_frames, n_joints, _ = N.shape
+    b = _bones(bones, n_joints)
+    lengths = np.asarray(bone_lengths, dtype=np.float64)
+    keep = np.isfinite(lengths)
+    if not keep.all():
+        b, lengths = b[keep], lengths[keep]
+        incidence = None
+    if len(b) == 0 or gamma == 0:
+        return A - Z2 / rho2  # minimiser of <Z2, N - A> + rho2/2 ||N - A||^2
+    M = incidence_matrix(b, n_joints) if incidence is None else incidence
+    u = N[:, b[:, 0], :] - N[:, b[:, 1], :]                      # (T, B, 3)
+    F = np.einsum("tbc,tbc->tb", u, u) - lengths**2               # Eq. (16)
+    # g = -Z2 - rho2 (N - A) - gamma J^T F            (right-hand side of Eq. 20)
+    jtf = 2.0 * np.einsum("bs,tbc->tsc", M, u * F[..., None])     # J^T F, (T, S, 3)
+    g = -Z2 - rho2 * (N - A) - gamma * jtf
+    # J g: (J g)_tb = 2 u_tb . (M g_t)_b
+    Mg = np.einsum("bs,tsc->tbc", M, g)
+    jg = 2.0 * np.einsum("tbc,tbc->tb", u, Mg)
+    # K_t = rho2/gamma I + J_t J_t^T,  (J J^T)_bb' = 4 (M M^T)_bb' (u_b . u_b')
+    MMt = M @ M.T
+    K = 4.0 * MMt[None] * np.einsum("tbc,tdc->tbd", u, u)
+    K[:, np.arange(len(b)), np.arange(len(b))] += rho2 / gamma
+    y = np.linalg.solve(K, jg[..., None])[..., 0]                # (T, B)
+    jty = 2.0 * np.einsum("bs,tbc->tsc", M, u * y[..., None])     # J^T K^-1 J g
+    delta = (g - jty) / rho2
+    return N + delta
