@@ -230,11 +230,15 @@ def encode_skeleton_message(
 # --------------------------------------------------------------------------- decode
 
 def _unpack(payload: bytes) -> dict:
+    if not payload:
+        raise WireError("payload is empty, expected a msgpack map", "garbage")
     try:
         msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
-    except msgpack.ExtraData:
+    except msgpack.ExtraData as exc:
         raise WireError(
-            f"payload of {len(payload)} bytes has trailing bytes after the msgpack message", "garbage"
+            f"payload of {len(payload)} bytes is not one msgpack map: a msgpack "
+            f"{type(exc.unpacked).__name__} followed by {len(exc.extra)} trailing bytes",
+            "garbage",
         ) from None
     except (ValueError, msgpack.UnpackException, TypeError) as exc:
         text = str(exc) or type(exc).__name__
