@@ -1,0 +1,352 @@
+"""Fast smoothing baselines: One Euro, Kinect SDK Holt filter, Savitzky-Golay, median + SG.
+
+All positions are metres; ``(T, J, 3)`` for the batch functions, ``(J, 3)`` for one
+frame of a streaming filter. A joint that is missing (``observed`` False, or a NaN
+coordinate) never enters a filter's state: the streaming filters hold their last
+output for it (NaN if it was never seen) and resume when it returns.
+
+* :class:`OneEuroFilter` / :func:`one_euro` -- Casiez, Roussel & Vogel, "1 Euro
+  filter: a simple speed-based low-pass filter for noisy input in interactive
+  systems", CHI 2012. Adaptive first-order low-pass whose cutoff rises with speed:
+  ``f_c = min_cutoff + beta * |dx_hat|``; rate-aware through the sample period.
+* :class:`HoltFilter` / :func:`holt` -- the Kinect for Windows SDK joint filter
+  (Holt double-exponential smoothing with a jitter-radius pre-filter, prediction and
+  a max-deviation clamp). Parameters are ``TransformSmoothParameters``
+  (``NUI_TRANSFORM_SMOOTH_PARAMETERS``); defaults are the SDK's documented defaults
+  ``{Smoothing 0.5, Correction 0.5, Prediction 0.5, JitterRadius 0.05 m,
+  MaxDeviationRadius 0.04 m}`` ("Some smoothing with little latency (defaults)",
+  Kinect for Windows SDK 1.8 reference, NUI_TRANSFORM_SMOOTH_PARAMETERS,
+  https://learn.microsoft.com/en-us/previous-versions/windows/kinect-1.8/hh855623(v=ieb.10);
+  behaviour: "Joint Filtering", .../kinect-1.8/jj131024(v=ieb.10)). The update
+  equations follow the SDK's sample ``KinectJointFilter.cpp`` (``FilterDoubleExponential``),
+  including its rule that *inferred* joints use twice the two radii.
+* :func:`savgol` -- Savitzky-Golay (``scipy.signal.savgol_filter``) along time.
+* :func:`median_savgol` -- running median (outlier removal) followed by Savitzky-Golay.
+
+Window lengths are given in seconds and converted to odd frame counts at the rate,
+so the same defaults mean the same time span at 30 Hz and at 120 Hz.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+__all__ = [
+    "OneEuroFilter",
+    "HoltParams",
+    "HoltFilter",
+    "KINECT_SDK_DEFAULTS",
+    "one_euro",
+    "holt",
+    "savgol",
+    "median_savgol",
+    "running_median",
+    "odd_window",
+]
+
+
+def _observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+    finite = np.isfinite(positions).all(axis=-1)
+    if observed is None:
+        return finite
+    observed = np.asarray(observed, dtype=bool)
+    if observed.shape != finite.shape:
+        raise ValueError(f"observed must have shape {finite.shape}, got {observed.shape}")
+    return observed & finite
+
+
+def odd_window(window_s: float, rate_hz: float, minimum: int = 3) -> int:
+    """An odd frame count spanning about ``window_s`` seconds at ``rate_hz`` (>= minimum)."""
+    n = int(round(window_s * rate_hz))
+    n = max(n, minimum)
+    return n if n % 2 == 1 else n + 1
+
+
+# --------------------------------------------------------------------------- One Euro
+class OneEuroFilter:
+    """Streaming One Euro filter over ``(J, 3)`` frames, vectorised across joints.
+
+    Parameters (Casiez et al. 2012): ``min_cutoff`` (Hz) -- cutoff at rest, lower means
+    less jitter and more lag; ``beta`` (1/m, i.e. Hz per m/s of speed) -- speed
+    coefficient, higher means less lag on fast motion; ``d_cutoff`` (Hz) -- cutoff of the
+    derivative's low-pass. ``rate_hz`` sets the nominal sample period; ``step`` may be
+    given an explicit timestamp ``t`` (s) instead, so dropped frames are handled.
+    """
+
+    def __init__(
+        self,
+        rate_hz: float,
+        min_cutoff: float = 1.0,
+        beta: float = 0.5,
+        d_cutoff: float = 1.0,
+    ) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        self.rate_hz = float(rate_hz)
+        self.min_cutoff = float(min_cutoff)
+        self.beta = float(beta)
+        self.d_cutoff = float(d_cutoff)
+        self.reset()
+
+    def reset(self) -> None:
+        self._x: np.ndarray | None = None  # (J, 3) last filtered position
+        self._dx: np.ndarray | None = None  # (J, 3) last filtered derivative (m/s)
+        self._t: np.ndarray | None = None  # (J,) time of last update (s)
+        self._seen: np.ndarray | None = None  # (J,) joint has state
+        self._frame = 0
+
+    @staticmethod
+    def _alpha(cutoff: np.ndarray | float, dt: np.ndarray) -> np.ndarray:
+        # alpha = 1 / (1 + tau / T_e), tau = 1 / (2 pi f_c)   (Casiez et al., Eq. 1-2)
+        tau = 1.0 / (2.0 * np.pi * cutoff)
+        return 1.0 / (1.0 + tau / dt)
+
+    def step(self, positions: np.ndarray, observed: np.ndarray | None = None, t: float | None = None) -> np.ndarray:
+        """Filter one frame ``(J, 3)`` (m); returns the filtered ``(J, 3)``."""
+        x = np.asarray(positions, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise ValueError(f"positions must be (J, 3), got {x.shape}")
+        obs = _observed_mask(x, observed)
+        n_joints = x.shape[0]
+        if t is None:
+            t = self._frame / self.rate_hz
+        self._frame += 1
+        if self._x is None or self._x.shape[0] != n_joints:
+            if self._x is not None:
+                raise ValueError(f"filter was started with {self._x.shape[0]} joints, got {n_joints}")
+            self._x = np.full((n_joints, 3), np.nan)
+            self._dx = np.zeros((n_joints, 3))
+            self._t = np.zeros(n_joints)
+            self._seen = np.zeros(n_joints, dtype=bool)
+        first = obs & ~self._seen
+        upd = obs & self._seen
+        if first.any():
+            self._x[first] = x[first]
+            self._dx[first] = 0.0
+            self._t[first] = t
+            self._seen[first] = True
+        if upd.any():
+            dt = np.maximum(t - self._t[upd], 1e-6)[:, None]  # (n, 1) s
+            x_prev = self._x[upd]
+            dx = (x[upd] - x_prev) / dt
+            a_d = self._alpha(self.d_cutoff, dt)
+            dx_hat = a_d * dx + (1.0 - a_d) * self._dx[upd]
+            cutoff = self.min_cutoff + self.beta * np.abs(dx_hat)  # per coordinate
+            a = self._alpha(cutoff, dt)
+            self._x[upd] = a * x[upd] + (1.0 - a) * x_prev
+            self._dx[upd] = dx_hat
+            self._t[upd] = t
+        return self._x.copy()
+
+
+def one_euro(
+    positions: np.ndarray,
+    rate_hz: float,
+    observed: np.ndarray | None = None,
+    min_cutoff: float = 1.0,
+    beta: float = 0.5,
+    d_cutoff: float = 1.0,
+) -> np.ndarray:
+    """Causal One Euro filter over ``(T, J, 3)``; missing joints hold the last output."""
+    positions = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(positions, observed)
+    f = OneEuroFilter(rate_hz, min_cutoff, beta, d_cutoff)
+    out = np.empty_like(positions)
+    for t in range(positions.shape[0]):  # recursive: loops over frames, vectorised over joints
+        out[t] = f.step(positions[t], obs[t])
+    return out
+
+
+# --------------------------------------------------------------------------- Holt
+@dataclass(frozen=True)
+class HoltParams:
+    """Kinect SDK ``TransformSmoothParameters`` (radii in metres, prediction in frames)."""
+
+    smoothing: float = 0.5
+    correction: float = 0.5
+    prediction: float = 0.5
+    jitter_radius: float = 0.05
+    max_deviation_radius: float = 0.04
+
+
+KINECT_SDK_DEFAULTS = HoltParams()
+
+
+class HoltFilter:
+    """Streaming Kinect SDK joint filter (Holt double exponential), vectorised across joints.
+
+    Per joint, with raw position ``x``, previous filtered ``f'``, trend ``b'`` and the
+    parameters ``(s, c, p, r_j, r_d)`` of :class:`HoltParams`:
+
+    1. first frame: ``f = x, b = 0``; second: ``f = (x + x_prev)/2``, ``b = c (f - f') + (1-c) b'``;
+    2. later: jitter pre-filter ``d = |x - f'|``; ``x~ = x d/r_j + f' (1 - d/r_j)`` if
+       ``d <= r_j`` else ``x``; then ``f = (1-s) x~ + s (f' + b')``, ``b = c (f - f') + (1-c) b'``;
+    3. prediction ``y = f + p b``; if ``|y - x| > r_d`` clamp ``y`` to the sphere of radius
+       ``r_d`` around ``x``. ``y`` is the output.
+
+    A missing joint resets that joint's history (as the SDK does for an untracked
+    joint) and holds its last output. ``inferred`` joints use ``2 r_j`` and ``2 r_d``.
+    """
+
+    def __init__(self, params: HoltParams = KINECT_SDK_DEFAULTS) -> None:
+        self.params = params
+        self.reset()
+
+    def reset(self) -> None:
+        self._count: np.ndarray | None = None  # (J,) frames in history (0, 1, 2+)
+        self._raw = self._filt = self._trend = self._out = None
+
+    def step(
+        self,
+        positions: np.ndarray,
+        observed: np.ndarray | None = None,
+        inferred: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Filter one frame ``(J, 3)`` (m); returns the filter output ``(J, 3)``."""
+        p = self.params
+        x = np.asarray(positions, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise ValueError(f"positions must be (J, 3), got {x.shape}")
+        n_joints = x.shape[0]
+        obs = _observed_mask(x, observed)
+        if self._count is None:
+            self._count = np.zeros(n_joints, dtype=np.int64)
+            self._raw = np.zeros((n_joints, 3))
+            self._filt = np.zeros((n_joints, 3))
+            self._trend = np.zeros((n_joints, 3))
+            self._out = np.full((n_joints, 3), np.nan)
+        elif self._count.shape[0] != n_joints:
+            raise ValueError(f"filter was started with {self._count.shape[0]} joints, got {n_joints}")
+        jr = np.full(n_joints, max(p.jitter_radius, 1e-4))  # SDK: epsilon 0.1 mm
+        md = np.full(n_joints, p.max_deviation_radius)
+        if inferred is not None:
+            inf = np.asarray(inferred, dtype=bool)
+            jr = np.where(inf, 2.0 * jr, jr)
+            md = np.where(inf, 2.0 * md, md)
+
+        self._count[~obs] = 0  # untracked joint: reset its history
+        c0 = obs & (self._count == 0)
+        c1 = obs & (self._count == 1)
+        c2 = obs & (self._count >= 2)
+        f = np.zeros((n_joints, 3))
+        b = np.zeros((n_joints, 3))
+        f[c0] = x[c0]
+        f[c1] = 0.5 * (x[c1] + self._raw[c1])
+        b[c1] = p.correction * (f[c1] - self._filt[c1]) + (1 - p.correction) * self._trend[c1]
+        if c2.any():
+            fp, bp, xr = self._filt[c2], self._trend[c2], x[c2]
+            d = np.linalg.norm(xr - fp, axis=1)
+            ratio = (d / jr[c2])[:, None]
+            xj = np.where(ratio <= 1.0, xr * ratio + fp * (1.0 - ratio), xr)
+            fn = xj * (1.0 - p.smoothing) + (fp + bp) * p.smoothing
+            f[c2] = fn
+            b[c2] = p.correction * (fn - fp) + (1.0 - p.correction) * bp
+        y = f + b * p.prediction
+        dev = np.linalg.norm(y - x, axis=1)
+        over = obs & (dev > md)
+        if over.any():
+            k = (md[over] / dev[over])[:, None]
+            y[over] = y[over] * k + x[over] * (1.0 - k)
+        self._raw[obs] = x[obs]
+        self._filt[obs] = f[obs]
+        self._trend[obs] = b[obs]
+        self._count[obs] += 1
+        self._out[obs] = y[obs]
+        return self._out.copy()
+
+
+def holt(
+    positions: np.ndarray,
+    observed: np.ndarray | None = None,
+    inferred: np.ndarray | None = None,
+    params: HoltParams = KINECT_SDK_DEFAULTS,
+) -> np.ndarray:
+    """Causal Kinect SDK Holt filter over ``(T, J, 3)`` (m); missing joints hold the last output."""
+    positions = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(positions, observed)
+    f = HoltFilter(params)
+    out = np.empty_like(positions)
+    for t in range(positions.shape[0]):  # recursive: loops over frames, vectorised over joints
+        out[t] = f.step(positions[t], obs[t], None if inferred is None else inferred[t])
+    return out
+
+
+# --------------------------------------------------------------------------- offline filters
+def _fill_linear(positions: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    from .interpolate import interpolate_linear
+
+    filled, _ = interpolate_linear(positions, obs)
+    return filled
+
+
+def savgol(
+    positions: np.ndarray,
+    rate_hz: float,
+    observed: np.ndarray | None = None,
+    window_s: float = 0.3,
+    polyorder: int = 3,
+) -> np.ndarray:
+    """Savitzky-Golay smoothing along time of ``(T, J, 3)`` (m), window ``window_s`` s.
+
+    Missing samples are first filled by linear interpolation (edges hold the nearest
+    observation) so that they neither poison the fit nor stay missing; a joint never
+    observed stays NaN. A polynomial of degree <= ``polyorder`` passes unchanged.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(positions, observed)
+    x = _fill_linear(positions, obs)
+    n = x.shape[0]
+    w = odd_window(window_s, rate_hz, minimum=polyorder + 2 if polyorder % 2 else polyorder + 1)
+    if n < 2:
+        return x.copy()
+    if w > n:
+        w = n if n % 2 == 1 else n - 1
+    order = min(polyorder, w - 1)
+    if w <= order or w < 3:
+        return x.copy()
+    return savgol_filter(x, w, order, axis=0, mode="interp")
+
+
+def running_median(positions: np.ndarray, window: int, observed: np.ndarray | None = None) -> np.ndarray:
+    """Centred running median over ``window`` frames (odd) of ``(T, ...)``, ignoring missing.
+
+    Edges use the shrunken window (reflection is avoided: it would double-count edge
+    samples). An output sample is NaN only when its whole window is missing.
+    """
+    x = np.asarray(positions, dtype=np.float64).copy()
+    if observed is not None:
+        x[~_observed_mask(x, observed)] = np.nan
+    half = window // 2
+    n = x.shape[0]
+    pad = np.full((half,) + x.shape[1:], np.nan)
+    xp = np.concatenate([pad, x, pad], axis=0)
+    win = np.lib.stride_tricks.sliding_window_view(xp, window, axis=0)  # (T, ..., window)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(win, axis=-1)
+    return med[:n]
+
+
+def median_savgol(
+    positions: np.ndarray,
+    rate_hz: float,
+    observed: np.ndarray | None = None,
+    median_window_s: float = 0.17,
+    window_s: float = 0.3,
+    polyorder: int = 3,
+) -> np.ndarray:
+    """Running median (window ``median_window_s`` s) then Savitzky-Golay (``window_s`` s).
+
+    The median removes isolated outliers (it ignores missing samples); the
+    Savitzky-Golay pass then smooths the median's staircase. Gaps longer than the
+    median window are filled linearly before the second pass.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(positions, observed)
+    med = running_median(positions, odd_window(median_window_s, rate_hz), obs)
+    return savgol(med, rate_hz, None, window_s=window_s, polyorder=polyorder)

@@ -1,0 +1,95 @@
+"""Accuracy and smoothness metrics (Yang et al. 2019, Section IV, plus jitter and bone CV).
+
+With ground truth ``n~`` and reconstruction ``n``, both ``(T, J, 3)`` metres:
+
+* AJE  omega = 1/(S T) sum_t sum_p d(n~_p^t, n_p^t)           (Section IV, d = Euclidean)
+* ABE  xi    = 1/(T (S-1)) sum_t sum_{e_ij in E} |l~_ij^t - l_ij^t|   (Section IV; S-1 = number
+  of bones for a tree skeleton, so this is the mean over bones and frames)
+
+Extra measures used on data without ground truth (Kinect):
+
+* jitter: mean magnitude of the second difference ``|x_{t+1} - 2 x_t + x_{t-1}|`` over
+  joints and frames, in **metres per frame squared** (so it depends on the rate:
+  compare methods at the same rate only);
+* bone-length coefficient of variation: per bone ``std_t(l) / mean_t(l)``, averaged
+  over bones (dimensionless);
+* ``gap_mae``: mean joint error over the missing joint-frames only (m).
+
+NaN samples are ignored everywhere (a metric over no samples is NaN).
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors"]
+
+
+def _check_pair(pred: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    pred = np.asarray(pred, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64)
+    if pred.shape != truth.shape or pred.ndim != 3 or pred.shape[2] != 3:
+        raise ValueError(f"expected two (T, J, 3) arrays of equal shape, got {pred.shape} and {truth.shape}")
+    return pred, truth
+
+
+def _nanmean(a: np.ndarray) -> float:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return float(np.nanmean(a)) if a.size else float("nan")
+
+
+def joint_errors(pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``(T, J)`` Euclidean distances d(n~_p^t, n_p^t) in metres."""
+    pred, truth = _check_pair(pred, truth)
+    return np.linalg.norm(pred - truth, axis=2)
+
+
+def aje(pred: np.ndarray, truth: np.ndarray) -> float:
+    """Average joint error omega (m), Yang et al. Section IV."""
+    return _nanmean(joint_errors(pred, truth))
+
+
+def bone_lengths(positions: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """``(T, B)`` bone lengths l_ij^t (m) for bones ``(B, 2)`` of joint indices."""
+    x = np.asarray(positions, dtype=np.float64)
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    return np.linalg.norm(x[:, b[:, 0]] - x[:, b[:, 1]], axis=2)
+
+
+def abe(pred: np.ndarray, truth: np.ndarray, bones: np.ndarray) -> float:
+    """Average bone-length error xi (m), Yang et al. Section IV."""
+    pred, truth = _check_pair(pred, truth)
+    return _nanmean(np.abs(bone_lengths(truth, bones) - bone_lengths(pred, bones)))
+
+
+def jitter(positions: np.ndarray) -> float:
+    """Mean ``|x_{t+1} - 2 x_t + x_{t-1}|`` over frames and joints (m/frame^2)."""
+    x = np.asarray(positions, dtype=np.float64)
+    if x.shape[0] < 3:
+        return float("nan")
+    d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    return _nanmean(np.linalg.norm(d2, axis=-1))
+
+
+def bone_length_cv(positions: np.ndarray, bones: np.ndarray, frames: np.ndarray | None = None) -> float:
+    """Mean over bones of std_t(l) / mean_t(l); optionally only over ``frames`` ``(T,)`` bool."""
+    lengths = bone_lengths(positions, bones)
+    if frames is not None:
+        lengths = lengths[np.asarray(frames, dtype=bool)]
+    if lengths.shape[0] < 2:
+        return float("nan")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        cv = np.nanstd(lengths, axis=0) / np.nanmean(lengths, axis=0)
+    return _nanmean(cv)
+
+
+def gap_mae(pred: np.ndarray, truth: np.ndarray, missing: np.ndarray) -> float:
+    """Mean joint error (m) over the joint-frames flagged in ``missing`` ``(T, J)`` only."""
+    err = joint_errors(pred, truth)
+    missing = np.asarray(missing, dtype=bool)
+    if missing.shape != err.shape:
+        raise ValueError(f"missing must be {err.shape}, got {missing.shape}")
+    return _nanmean(err[missing])

@@ -1,0 +1,174 @@
+"""Properties of the fast baselines in streamfix.core.filters and .interpolate."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamfix.core import filters
+from streamfix.core.interpolate import interpolate_linear, interpolate_spline
+from streamfix.core.metrics import jitter
+
+
+def _noisy_constant(rate_hz=30.0, n=300, j=4, sigma=0.01, seed=0):
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(-1, 1, size=(1, j, 3))
+    return base + rng.normal(0, sigma, size=(n, j, 3)), base
+
+
+def test_one_euro_reduces_jitter_of_noisy_constant():
+    x, base = _noisy_constant()
+    y = filters.one_euro(x, 30.0, min_cutoff=1.0, beta=0.5)
+    assert jitter(y[30:]) < 0.25 * jitter(x[30:])
+    # and it stays centred on the constant
+    assert np.abs(y[30:].mean(axis=0) - base[0]).max() < 0.005
+
+
+def test_one_euro_ramp_lag_bounded_and_beta_reduces_it():
+    rate, v = 60.0, 1.0  # m/s
+    t = np.arange(240) / rate
+    x = np.zeros((t.size, 1, 3))
+    x[:, 0, 0] = v * t
+    lag0 = x[-1, 0, 0] - filters.one_euro(x, rate, min_cutoff=1.0, beta=0.0)[-1, 0, 0]
+    lag1 = x[-1, 0, 0] - filters.one_euro(x, rate, min_cutoff=1.0, beta=2.0)[-1, 0, 0]
+    tau = 1 / (2 * np.pi * 1.0)
+    # steady-state lag of a first-order low-pass on a ramp is about v * tau
+    assert 0 < lag0 <= v * tau * 1.05
+    assert 0 < lag1 < 0.5 * lag0
+
+
+def test_one_euro_is_rate_aware():
+    # the same motion sampled at 30 and 120 Hz ends with (about) the same lag
+    lags = []
+    for rate in (30.0, 120.0):
+        t = np.arange(int(4 * rate)) / rate
+        x = np.zeros((t.size, 1, 3))
+        x[:, 0, 1] = 0.5 * t
+        lags.append(x[-1, 0, 1] - filters.one_euro(x, rate, beta=0.0)[-1, 0, 1])
+    assert lags[0] == pytest.approx(lags[1], rel=0.3)
+
+
+def test_one_euro_missing_joint_does_not_poison_state():
+    f = filters.OneEuroFilter(30.0)
+    a = np.array([[0.0, 0.0, 1.0], [1.0, 1.0, 1.0]])
+    f.step(a)
+    out = f.step(np.array([[np.nan, np.nan, np.nan], [1.0, 1.0, 1.0]]))
+    assert np.allclose(out[0], a[0])  # held, not NaN
+    out = f.step(a)
+    assert np.all(np.isfinite(out))
+    assert np.allclose(out, a)
+
+
+def test_holt_matches_hand_computed_sdk_steps():
+    # SDK defaults: smoothing .5, correction .5, prediction .5, jitter .05 m, max dev .04 m
+    f = filters.HoltFilter()
+    raw = [0.0, 0.02, 0.03, 0.2]
+    expected = [
+        0.0,  # first frame: f = x, b = 0
+        0.0125,  # f = (0.02 + 0)/2 = .01, b = .5*.01 = .005, y = .01 + .5*.005
+        0.019375,  # jitter: d=.02 -> x~=.018; f=.5*.018+.5*(.01+.005)=.0165; b=.00575; y=.0165+.002875
+        0.16,  # d > .05 -> x~ = x; f=.111125, b=.0501875, y=.13621875; |y-x|>.04 -> clamp to x-.04
+    ]
+    for r, e in zip(raw, expected):
+        out = f.step(np.array([[r, 0.0, 0.0]]))
+        assert out[0, 0] == pytest.approx(e, abs=1e-12)
+        assert out[0, 1] == 0.0 and out[0, 2] == 0.0
+
+
+def test_holt_inferred_doubles_radii():
+    p = filters.HoltParams()
+    a, b = filters.HoltFilter(p), filters.HoltFilter(p)
+    for r in (0.0, 0.0, 0.0, 0.07):
+        x = np.array([[r, 0.0, 0.0]])
+        ya = a.step(x)
+        yb = b.step(x, inferred=np.array([True]))
+    # 0.07 is outside 0.05 but inside 0.10: the inferred joint's jitter filter damps it more
+    assert yb[0, 0] < ya[0, 0]
+
+
+def test_holt_missing_joint_resets_and_holds():
+    f = filters.HoltFilter()
+    for _ in range(5):
+        f.step(np.ones((2, 3)))
+    out = f.step(np.array([[np.nan] * 3, [1.0, 1.0, 1.0]]))
+    assert np.allclose(out[0], 1.0)
+    out = f.step(np.array([[2.0, 2.0, 2.0], [1.0, 1.0, 1.0]]))
+    assert np.allclose(out[0], 2.0)  # restarted: first frame returns the raw value
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_savgol_preserves_polynomials(order):
+    rate = 30.0
+    t = np.arange(90) / rate
+    coef = np.array([0.3, -0.5, 0.8, 0.2])[: order + 1]
+    traj = np.polyval(coef, t)
+    x = np.stack([traj, 2 * traj, -traj], axis=-1)[:, None, :].repeat(3, axis=1)
+    y = filters.savgol(x, rate, polyorder=order)
+    assert np.allclose(y, x, atol=1e-9)
+
+
+def test_savgol_handles_missing_samples():
+    rate = 30.0
+    t = np.arange(60) / rate
+    x = np.zeros((60, 1, 3))
+    x[:, 0, 0] = 0.5 * t + 0.1
+    obs = np.ones((60, 1), bool)
+    obs[20:26] = False
+    xin = x.copy()
+    xin[~obs] = np.nan
+    y = filters.savgol(xin, rate, observed=obs)
+    assert np.all(np.isfinite(y))
+    assert np.allclose(y, x, atol=1e-9)
+
+
+def test_median_savgol_removes_isolated_spikes():
+    rate = 30.0
+    t = np.arange(120) / rate
+    x = np.zeros((120, 2, 3))
+    x[:, :, 0] = 0.2 * np.sin(2 * np.pi * 0.5 * t)[:, None]
+    spiky = x.copy()
+    spiky[::10, 0, 0] += 0.25
+    inner = slice(10, -10)  # a spike on the very first frame is indistinguishable from motion
+    err_ms = np.abs(filters.median_savgol(spiky, rate) - x)[inner].max()
+    err_sg = np.abs(filters.savgol(spiky, rate) - x)[inner].max()
+    assert err_ms < 0.02
+    assert err_ms < 0.3 * err_sg
+
+
+def test_running_median_ignores_missing():
+    x = np.arange(10, dtype=float)[:, None, None] * np.ones((1, 1, 3))
+    obs = np.ones((10, 1), bool)
+    obs[4] = False
+    x[4] = 1000.0  # must not be seen
+    m = filters.running_median(x, 3, obs)
+    assert m[4, 0, 0] == pytest.approx(4.0)
+    assert np.all(m < 100)
+
+
+def test_linear_interpolation_fills_gaps_and_holds_edges():
+    x = np.zeros((10, 2, 3))
+    x[:, 0, 0] = np.arange(10)
+    obs = np.ones((10, 2), bool)
+    obs[[0, 1, 4, 5, 9], 0] = False
+    obs[:, 1] = False  # never observed
+    xin = x.copy()
+    xin[~obs] = np.nan
+    y, filled = interpolate_linear(xin, obs)
+    assert np.allclose(y[2:9, 0, 0], np.arange(2, 9))
+    assert y[0, 0, 0] == 2 and y[1, 0, 0] == 2 and y[9, 0, 0] == 8
+    assert np.all(np.isnan(y[:, 1]))
+    assert filled[:, 0].tolist() == (~obs[:, 0]).tolist()
+    assert not filled[:, 1].any()
+
+
+def test_spline_interpolation_exact_for_cubic():
+    t = np.arange(40, dtype=float)
+    x = np.zeros((40, 1, 3))
+    x[:, 0, 0] = 1e-4 * (t - 20) ** 3 - 0.01 * t
+    obs = np.ones((40, 1), bool)
+    obs[12:25] = False
+    xin = x.copy()
+    xin[~obs] = np.nan
+    ys, _ = interpolate_spline(xin, obs)
+    yl, _ = interpolate_linear(xin, obs)
+    assert np.allclose(ys, x, atol=1e-9)
+    assert np.abs(yl - x).max() > 1e-3

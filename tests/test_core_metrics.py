@@ -1,0 +1,69 @@
+"""Metrics on hand-made cases (Yang et al. Section IV definitions)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamfix.core import metrics
+
+BONES = np.array([[0, 1], [1, 2]])
+
+
+def _chain(n=4):
+    x = np.zeros((n, 3, 3))
+    x[:, 1, 0] = 1.0
+    x[:, 2, 0] = 3.0  # bones of length 1 and 2
+    return x
+
+
+def test_aje_is_mean_euclidean_distance():
+    gt = _chain()
+    pred = gt.copy()
+    pred[0, 0] += [3.0, 4.0, 0.0]  # one joint-frame off by 5 m
+    assert metrics.aje(pred, gt) == pytest.approx(5.0 / 12)
+
+
+def test_abe_mean_over_bones_and_frames():
+    gt = _chain()
+    pred = gt.copy()
+    pred[1, 2, 0] = 3.5  # second bone 0.5 m too long in one frame
+    assert metrics.abe(pred, gt, BONES) == pytest.approx(0.5 / 8)
+    # a rigid translation changes AJE but not ABE
+    moved = gt + np.array([0.1, 0.2, 0.3])
+    assert metrics.abe(moved, gt, BONES) == pytest.approx(0.0, abs=1e-12)
+    assert metrics.aje(moved, gt) == pytest.approx(np.sqrt(0.14))
+
+
+def test_jitter_zero_for_linear_motion_and_units_per_frame():
+    t = np.arange(10, dtype=float)
+    x = np.zeros((10, 1, 3))
+    x[:, 0, 0] = 0.1 * t
+    assert metrics.jitter(x) == pytest.approx(0.0, abs=1e-12)
+    x[5, 0, 1] = 0.01  # one bump: three second differences of magnitude .01, .02, .01
+    assert metrics.jitter(x) == pytest.approx(0.04 / 8)
+
+
+def test_bone_length_cv():
+    x = _chain(2)
+    x[1, 2, 0] = 4.0  # bone 2: lengths 2 and 3 -> std 0.5, mean 2.5
+    assert metrics.bone_length_cv(x, BONES) == pytest.approx((0 + 0.5 / 2.5) / 2)
+    assert metrics.bone_length_cv(_chain(), BONES) == pytest.approx(0.0)
+
+
+def test_gap_mae_only_over_missing():
+    gt = _chain()
+    pred = gt.copy()
+    pred[2, 1] += [0.0, 0.3, 0.0]
+    pred[0, 0] += [1.0, 0.0, 0.0]  # not in the gap: must not count
+    missing = np.zeros((4, 3), bool)
+    missing[2, 1] = missing[3, 1] = True
+    assert metrics.gap_mae(pred, gt, missing) == pytest.approx(0.15)
+
+
+def test_metrics_ignore_nan_and_check_shapes():
+    gt = _chain()
+    pred = gt.copy()
+    pred[0, 0] = np.nan
+    assert metrics.aje(pred, gt) == pytest.approx(0.0)
+    with pytest.raises(ValueError, match=r"\(4, 3, 3\)"):
+        metrics.aje(pred[:, :2], gt)
