@@ -237,7 +237,7 @@ def _unpack(payload: bytes) -> dict:
     except msgpack.ExtraData as exc:
         raise WireError(
             f"payload of {len(payload)} bytes is not one msgpack map: a msgpack "
-            f"{type(exc.unpacked).__name__} followed by {len(exc.extra)} trailing bytes",
+            f"{_mp_type(exc.unpacked)} followed by {len(exc.extra)} trailing bytes",
             "garbage",
         ) from None
     except (ValueError, msgpack.UnpackException, TypeError) as exc:
@@ -249,7 +249,7 @@ def _unpack(payload: bytes) -> dict:
         text = str(exc) or type(exc).__name__
         raise WireError(f"payload of {len(payload)} bytes is not valid msgpack ({text})", "garbage") from None
     if not isinstance(msg, dict):
-        raise WireError(f"payload is a msgpack {type(msg).__name__}, expected a map", "garbage")
+        raise WireError(f"payload is a msgpack {_mp_type(msg)}, expected a map", "garbage")
     v = msg.get("v")
     if not isinstance(v, int) or isinstance(v, bool):
         raise WireError(f"field 'v' (protocol version) is missing or not an integer: {v!r}", "field")
@@ -265,8 +265,17 @@ def _field(msg: dict, key: str, types, what: str):
     if not isinstance(value, types) or (isinstance(value, bool) and bool not in _tuple(types)):
         if key not in msg:
             raise WireError(f"field {key!r} ({what}) is missing", "field")
-        raise WireError(f"field {key!r} ({what}) has {type(value).__name__} {value!r:.40}, expected {what}", "field")
+        raise WireError(f"field {key!r} is a msgpack {_mp_type(value)} ({value!r:.40}), expected {what}", "field")
     return value
+
+
+def _mp_type(value) -> str:
+    """The msgpack family of a decoded value, for error messages."""
+    for t, name in ((bool, "boolean"), (int, "integer"), (float, "float"), (str, "string"),
+                    (bytes, "binary"), (list, "array"), (dict, "map"), (type(None), "nil")):
+        if isinstance(value, t):
+            return name
+    return type(value).__name__
 
 
 def _tuple(types) -> tuple:
@@ -290,6 +299,19 @@ def _lookup_skeleton(name: str, skeletons: Mapping[str, Skeleton] | None) -> Ske
             f"unknown skeleton {name!r} (not in the registry and no skeleton message seen for it)",
             "skeleton",
         ) from None
+
+
+def _blob(body: dict, key: str, bid: int, n_bytes: int, what: str) -> bytes:
+    value = body.get(key)
+    if isinstance(value, bytes):
+        return value
+    if key not in body:
+        raise WireError(f"body {bid}: field {key!r} is missing", "field")
+    raise WireError(
+        f"body {bid}: field {key!r} is a msgpack {_mp_type(value)}, expected a binary blob of "
+        f"{n_bytes} bytes ({what})",
+        "field",
+    )
 
 
 def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> SkeletonFrame:
@@ -320,25 +342,21 @@ def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> Skel
     seen: set[int] = set()
     for i, b in enumerate(bodies_raw):
         if not isinstance(b, dict):
-            raise WireError(f"body {i}: is a {type(b).__name__}, expected a map", "field")
+            raise WireError(f"body {i}: is a msgpack {_mp_type(b)}, expected a map", "field")
         bid = b.get("id")
         if not isinstance(bid, int) or isinstance(bid, bool):
             raise WireError(f"body {i}: field 'id' is missing or not an integer: {bid!r:.40}", "field")
         if bid in seen:
             raise WireError(f"body {i}: duplicate body id {bid}", "field")
         seen.add(bid)
-        pos_b = b.get("pos")
-        if not isinstance(pos_b, bytes):
-            raise WireError(f"body {bid}: field 'pos' is missing or not a binary blob", "field")
+        pos_b = _blob(b, "pos", bid, J * 12, "float32 LE positions")
         if len(pos_b) != J * 12:
             raise WireError(
                 f"body {bid}: positions blob has {len(pos_b)} bytes, expected {J * 12} "
                 f"({J} joints x 3 x float32)",
                 "joints",
             )
-        conf_b = b.get("conf")
-        if not isinstance(conf_b, bytes):
-            raise WireError(f"body {bid}: field 'conf' is missing or not a binary blob", "field")
+        conf_b = _blob(b, "conf", bid, J * 4, "float32 LE confidence")
         if len(conf_b) != J * 4:
             raise WireError(
                 f"body {bid}: confidence blob has {len(conf_b)} bytes, expected {J * 4} "
@@ -356,8 +374,7 @@ def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> Skel
         recovered = None
         rec_b = b.get("rec")
         if rec_b is not None:
-            if not isinstance(rec_b, bytes):
-                raise WireError(f"body {bid}: field 'rec' is not a binary blob", "field")
+            rec_b = _blob(b, "rec", bid, J, "uint8 recovered flags")
             if len(rec_b) != J:
                 raise WireError(
                     f"body {bid}: recovered blob has {len(rec_b)} bytes, expected {J} ({J} joints x uint8)",
