@@ -1,0 +1,101 @@
+"""``streamfix replay FILE --to ENDPOINT``: play a recording into a service as a live sensor.
+
+Reads any recording ``streamfix.io.read_motion`` understands (Kinect v2 CSV, BVH, C3D,
+the project's ``.sfrec``) and sends its frames as wire ``frame`` messages on
+``sf/raw/<stream>``, first announcing the skeleton with a ``skeleton`` message (so a
+skeleton outside the registry, e.g. a BVH hierarchy, decodes at the service).
+
+Socket: a **PUSH socket that connects** to ``--to``, which is the PULL endpoint a
+``streamfix serve --source tcp://...`` binds. PUSH queues messages until the
+connection is up and blocks (rather than drops) at its high-water mark, so no frame
+is lost to ZeroMQ's slow-joiner effect even when the replay starts before the
+service; a slow service throttles the replay instead. On exit the socket lingers up
+to ``--linger-ms`` for queued frames to be delivered.
+
+Timing: frame ``i`` is sent at ``start + (t_i - t_0) / rate`` on the monotonic clock
+(absolute schedule: no drift accumulates from sleep overshoot); ``--rate 0`` sends as
+fast as the socket takes them. ``--loop`` repeats the recording with continuing
+sequence numbers and sensor times, until interrupted (SIGINT/SIGTERM stop cleanly).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+
+HELP = "play a recording (Kinect CSV, BVH, C3D, .sfrec) onto a service's input at its own timing (PUSH)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", help="recording to play")
+    p.add_argument("--to", default="tcp://127.0.0.1:5555",
+                   help="endpoint to connect a PUSH socket to: the service's --source (default %(default)s)")
+    p.add_argument("--rate", type=float, default=1.0,
+                   help="speed-up over the recording's timing (1 = real time, 0 = as fast as possible)")
+    p.add_argument("--loop", action="store_true", help="repeat the recording until interrupted")
+    p.add_argument("--stream-id", default=None, help="stream id to send (default: the file name)")
+    p.add_argument("--body-id", type=int, default=0, help="body id of the recorded body (default 0)")
+    p.add_argument("--sndhwm", type=int, default=1000, help="PUSH high-water mark (messages) before it blocks")
+    p.add_argument("--linger-ms", type=int, default=10000,
+                   help="on exit, wait up to this long for queued frames to be delivered (default %(default)s)")
+    p.add_argument("--quiet", action="store_true", help="no summary line on stderr")
+
+
+def run(args: argparse.Namespace) -> int:
+    import zmq
+
+    from ..service.playback import Pacer, load_recording, motion_frames
+    from ..service.sources import _stream_id_from_path
+    from ..transport.zmq_io import FramePublisher
+
+    if args.rate < 0 or math.isnan(args.rate):
+        print(f"streamfix replay: --rate must be >= 0 (0 = as fast as possible), got {args.rate}", file=sys.stderr)
+        return 2
+    try:
+        motion = load_recording(args.file)
+    except (OSError, ValueError, RuntimeError) as exc:
+        print(f"streamfix replay: cannot read {args.file}: {exc}", file=sys.stderr)
+        return 2
+    stream_id = args.stream_id or _stream_id_from_path(args.file)
+    stop = {"flag": False}
+
+    def _stop(*_: object) -> None:
+        stop["flag"] = True
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+
+    try:
+        pub = FramePublisher(args.to, bind=False, socket_type=zmq.PUSH, sndhwm=args.sndhwm)
+    except zmq.ZMQError as exc:
+        print(f"streamfix replay: cannot connect to {args.to!r}: {exc}", file=sys.stderr)
+        return 2
+    pub.socket.setsockopt(zmq.LINGER, int(args.linger_ms))
+    pacer = Pacer(math.inf if args.rate == 0 else args.rate)
+    sent = 0
+    t_start = time.monotonic()
+    try:
+        pub.announce(stream_id, motion.skeleton, motion.rate_hz)
+        for t_rel, frame in motion_frames(motion, stream_id, body_id=args.body_id, loop=args.loop):
+            if stop["flag"]:
+                break
+            wait = pacer.wait_time(t_rel)
+            while wait > 0 and not stop["flag"]:
+                time.sleep(min(wait, 0.1))
+                wait = pacer.wait_time(t_rel)
+            if stop["flag"]:
+                break
+            pub.publish("raw", frame)
+            sent += 1
+    finally:
+        pub.close()  # lingers so queued frames reach the service
+    if not args.quiet:
+        took = time.monotonic() - t_start
+        print(
+            f"streamfix replay: sent {sent} frames of {args.file} as stream {stream_id!r} to {args.to} "
+            f"in {took:.2f} s ({motion.n_frames} frames, {motion.rate_hz:g} Hz, rate x{args.rate:g})",
+            file=sys.stderr,
+        )
+    return 0

@@ -1,0 +1,108 @@
+"""The per-stream engines ``streamfix serve`` drives (``--engine``).
+
+``streamfix`` (default)
+    :class:`streamfix.streaming.engine.StreamEngine`: the causal ``live`` fast path and
+    the windowed ``clean`` solver (threaded, never blocking the input).
+``passthrough``
+    Emits every input frame unchanged on ``live`` and ``clean`` at once. It is the
+    baseline of ``benchmarks/bench_service.py`` (socket + encoding cost alone) and a
+    way to run the service's plumbing without the solver.
+
+An engine offers ``push(frame) -> [(kind, frame)]``, ``flush() -> [(kind, frame)]``,
+optionally ``poll() -> [(kind, frame)]`` (outputs finished in the background) and
+``metrics() -> dict``; ``kind`` is ``"live"`` or ``"clean"``.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..frames import SkeletonFrame
+from ..skeletons import Skeleton
+
+__all__ = ["EngineOptions", "PassthroughEngine", "engine_factory", "ENGINES"]
+
+
+@dataclass
+class EngineOptions:
+    """Command-line engine settings; None leaves the engine's default."""
+
+    window: int | None = None       # frames per solved window
+    hop: int | None = None          # frames between solves
+    lookahead: float | None = None  # seconds of lookahead for the clean output
+    threaded: bool = True           # solve windows off the input thread
+
+
+class PassthroughEngine:
+    """``live`` and ``clean`` = the input frame, immediately (no cleaning)."""
+
+    def __init__(self, skeleton: Skeleton, rate_hz: float, options: EngineOptions | None = None) -> None:
+        self.skeleton = skeleton
+        self.rate_hz = rate_hz
+        self._frames = 0
+
+    def push(self, frame: SkeletonFrame) -> list[tuple[str, SkeletonFrame]]:
+        self._frames += 1
+        clean = copy.copy(frame)
+        clean.bodies = [copy.copy(b) for b in frame.bodies]
+        for b in clean.bodies:
+            b.recovered = np.zeros(b.positions.shape[0], dtype=bool)
+        return [("live", clean), ("clean", clean)]
+
+    def poll(self) -> list[tuple[str, SkeletonFrame]]:
+        return []
+
+    def flush(self) -> list[tuple[str, SkeletonFrame]]:
+        return []
+
+    def metrics(self) -> dict:
+        return {"frames_in": self._frames, "degraded": False, "lookahead_frames": 0}
+
+    def close(self) -> None:
+        pass
+
+
+def _streamfix_engine(skeleton: Skeleton, rate_hz: float, options: EngineOptions):
+    from ..streaming.engine import StreamEngine  # imported lazily: scipy/pywt cost
+
+    return StreamEngine(skeleton, _engine_config(rate_hz, options))
+
+
+def _engine_config(rate_hz: float, options: EngineOptions):
+    from ..streaming import engine as eng
+
+    config_cls = getattr(eng, "EngineConfig", None) or getattr(eng, "StreamConfig")
+    kwargs: dict = {}
+    fields = getattr(config_cls, "__dataclass_fields__", {})
+    if "rate_hz" in fields:
+        kwargs["rate_hz"] = float(rate_hz)
+    if options.window is not None:
+        kwargs["window"] = int(options.window)
+    if options.hop is not None:
+        kwargs["hop"] = int(options.hop)
+    if options.lookahead is not None:
+        kwargs["lookahead_s"] = float(options.lookahead)
+    if "threaded" in fields:
+        kwargs["threaded"] = bool(options.threaded)
+    unknown = [k for k in kwargs if fields and k not in fields]
+    if unknown:
+        raise ValueError(f"the streaming engine's config has no {', '.join(unknown)} setting")
+    return config_cls(**kwargs)
+
+
+ENGINES: dict[str, Callable] = {
+    "streamfix": _streamfix_engine,
+    "passthrough": PassthroughEngine,
+}
+
+
+def engine_factory(name: str, options: EngineOptions) -> Callable[[Skeleton, float], object]:
+    """``factory(skeleton, rate_hz) -> engine`` for ``--engine NAME``."""
+    try:
+        make = ENGINES[name]
+    except KeyError:
+        raise ValueError(f"unknown engine {name!r}; expected one of {', '.join(ENGINES)}") from None
+    return lambda skeleton, rate_hz: make(skeleton, rate_hz, options)

@@ -1,0 +1,355 @@
+"""``streamfix serve`` orchestration: source -> validate -> engine per stream -> publisher.
+
+One thread runs the loop (the metrics HTTP server and a stdin reader, if used, have
+their own daemon threads; the engine may solve windows on its own worker):
+
+1. ``source.poll(<=50 ms)`` gives raw frames, skeleton announcements and rejected
+   messages. A rejected or invalid message is counted under its reason
+   (``streamfix_malformed_total{reason}``), logged in one line, and skipped.
+2. A valid frame is published on ``raw``, pushed into its stream's engine (created on
+   the stream's first frame, from its skeleton and rate), and whatever the engine
+   returns goes out on ``live`` / ``clean``. Outputs the engine finishes in the
+   background are collected with ``engine.poll()`` on every turn.
+3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
+   one-line status goes to stderr every ``status_interval_s``.
+
+Shutdown: SIGINT/SIGTERM (or the end of a ``replay:``/``stdin`` source) stops the
+loop; whatever the source has already received is drained, every engine is
+flushed (``engine.flush()`` emits each pending frame), those frames are published,
+and only then are the sockets closed, with LINGER so queued messages still leave.
+
+Latencies (seconds, monotonic clock, from a frame's arrival at the service):
+``streamfix_live_latency_seconds`` / ``streamfix_clean_latency_seconds`` end to end
+up to the publish call; ``streamfix_live_compute_seconds`` the engine call that
+produced the live frame; ``streamfix_clean_compute_seconds`` how long after the
+input frame that completed its window (the lookahead) a clean frame came out -
+i.e. the clean latency beyond the lookahead.
+"""
+from __future__ import annotations
+
+import logging
+import signal
+import sys
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Callable
+
+from ..frames import SkeletonFrame
+from ..skeletons import Skeleton, get_skeleton
+from ..transport.wire import WireError, check_stream_id
+from .metrics import MetricsServer, Registry
+from .publisher import ServicePublisher
+from .sources import Announce, Frame, Rejected
+from .validate import REASONS, BadInput, validate_frame
+
+__all__ = ["Service", "ServiceMetrics"]
+
+log = logging.getLogger("streamfix.service")
+
+_MAX_PENDING = 100_000  # arrival times kept per stream for latency accounting
+
+
+class ServiceMetrics:
+    """The service's metric families (see ``docs``: names are part of the interface)."""
+
+    def __init__(self) -> None:
+        r = self.registry = Registry()
+        self.frames_in = r.counter("streamfix_frames_in_total", "Valid raw frames received, per stream.", ("stream",))
+        self.frames_out = r.counter(
+            "streamfix_frames_out_total", "Messages published, per topic kind (raw, live, clean, meta).", ("topic",)
+        )
+        self.malformed = r.counter(
+            "streamfix_malformed_total", "Input messages skipped as malformed, per reason.", ("reason",)
+        )
+        self.drops = r.counter(
+            "streamfix_publish_drops_total", "Output messages the PUB socket refused (not sent), per topic kind.", ("topic",)
+        )
+        self.nonfinite = r.counter(
+            "streamfix_nonfinite_joints_total", "Input joints with NaN/inf coordinates (treated as missing)."
+        )
+        self.filled = r.counter(
+            "streamfix_filled_frames_total", "Frames synthesised for sensor frames that never arrived."
+        )
+        self.streams = r.gauge("streamfix_streams", "Streams seen so far.")
+        self.bodies = r.gauge("streamfix_bodies", "Bodies in the latest frame, summed over streams.")
+        self.degraded = r.gauge("streamfix_degraded", "1 while any engine runs degraded (solver behind), else 0.")
+        self.live_compute = r.histogram("streamfix_live_compute_seconds", "Engine time to produce a live frame.")
+        self.clean_compute = r.histogram(
+            "streamfix_clean_compute_seconds", "Clean output delay beyond the lookahead (window solve + queueing)."
+        )
+        self.live_latency = r.histogram("streamfix_live_latency_seconds", "Arrival to publish of a live frame.")
+        self.clean_latency = r.histogram(
+            "streamfix_clean_latency_seconds", "Arrival to publish of a clean frame (lookahead + compute)."
+        )
+        for reason in REASONS:
+            self.malformed.touch(reason=reason)
+        for kind in ("raw", "live", "clean", "meta"):
+            self.frames_out.touch(topic=kind)
+            self.drops.touch(topic=kind)
+
+
+@dataclass
+class _Stream:
+    stream_id: str
+    skeleton: Skeleton
+    rate_hz: float
+    engine: object
+    arrivals: "OrderedDict[int, int]" = field(default_factory=OrderedDict)  # seq -> arrival ns
+    last_arrival_ns: int = 0
+    bodies: int = 0
+    frames: int = 0
+
+
+class Service:
+    """Run a source through per-stream engines onto a publisher (see module docstring)."""
+
+    def __init__(
+        self,
+        source,
+        publisher: ServicePublisher,
+        make_engine: Callable[[Skeleton, float], object],
+        *,
+        default_rate_hz: float = 30.0,
+        metrics: ServiceMetrics | None = None,
+        metrics_port: int | None = None,
+        metrics_host: str = "127.0.0.1",
+        status_interval_s: float = 5.0,
+        status_stream=None,
+        max_log_per_s: int = 20,
+    ) -> None:
+        self.source = source
+        self.publisher = publisher
+        self.make_engine = make_engine
+        self.default_rate_hz = float(default_rate_hz)
+        self.m = metrics or ServiceMetrics()
+        self.metrics_server: MetricsServer | None = None
+        if metrics_port is not None:
+            self.metrics_server = MetricsServer(self.m.registry, metrics_port, metrics_host).start()
+        self.status_interval_s = float(status_interval_s)
+        self.status_stream = status_stream if status_stream is not None else sys.stderr
+        self.streams: dict[str, _Stream] = {}
+        self._announced: dict[str, tuple[Skeleton, float]] = {}
+        self._skeletons: dict[str, Skeleton] = dict(getattr(source, "skeletons", {}) or {})
+        self._stop = threading.Event()
+        self._max_log_per_s = int(max_log_per_s)
+        self._log_window = (0.0, 0)
+        self._suppressed = 0
+        self._started = time.monotonic()
+        self._last_status = (self._started, 0)
+
+    # ------------------------------------------------------------------ control
+    def stop(self, *_: object) -> None:
+        """Ask the loop to finish (signal-safe); pending frames are still flushed."""
+        self._stop.set()
+
+    def install_signal_handlers(self) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self.stop)
+
+    # ------------------------------------------------------------------ input
+    def _reject(self, reason: str, detail: str) -> None:
+        self.m.malformed.inc(reason=reason)
+        now = time.monotonic()
+        start, n = self._log_window
+        if now - start >= 1.0:
+            if self._suppressed:
+                log.warning("%d more malformed messages in the last second were counted but not logged", self._suppressed)
+            self._log_window, self._suppressed = (now, 0), 0
+            start, n = now, 0
+        if n < self._max_log_per_s:
+            log.warning("skipped malformed input (%s): %s", reason, detail)
+            self._log_window = (start, n + 1)
+        else:
+            self._suppressed += 1
+
+    def _handle(self, item) -> None:
+        if isinstance(item, Rejected):
+            self._reject(item.reason, item.detail)
+        elif isinstance(item, Announce):
+            self._skeletons[item.skeleton.name] = item.skeleton
+            self._announced[item.stream_id] = (item.skeleton, float(item.rate_hz))
+        elif isinstance(item, Frame):
+            self._handle_frame(item)
+
+    def _stream_for(self, frame: SkeletonFrame, rate_hint: float | None) -> _Stream:
+        st = self.streams.get(frame.stream_id)
+        if st is not None and st.skeleton.name == frame.skeleton:
+            return st
+        if st is not None:  # the stream switched skeleton: finish the old engine first
+            log.warning(
+                "stream %r switched skeleton %s -> %s: flushing and restarting its engine",
+                frame.stream_id, st.skeleton.name, frame.skeleton,
+            )
+            self._publish_outputs(st, st.engine.flush())
+        skeleton = self._skeletons.get(frame.skeleton) or get_skeleton(frame.skeleton)
+        ann = self._announced.get(frame.stream_id)
+        rate = rate_hint or (ann[1] if ann and ann[0].name == skeleton.name else None) or self.default_rate_hz
+        st = _Stream(frame.stream_id, skeleton, float(rate), self.make_engine(skeleton, float(rate)))
+        self.streams[frame.stream_id] = st
+        self.m.streams.set(len(self.streams))
+        self.publisher.announce(frame.stream_id, skeleton, float(rate))
+        log.info("new stream %r: skeleton %s (%d joints), %.3g Hz", frame.stream_id, skeleton.name, skeleton.n_joints, rate)
+        return st
+
+    def _handle_frame(self, item: Frame) -> None:
+        frame = item.frame
+        try:
+            check_stream_id(frame.stream_id)
+            frame, nonfinite = validate_frame(frame, self._skeletons)
+        except WireError as exc:
+            self._reject("invalid", str(exc))
+            return
+        except BadInput as exc:
+            self._reject(exc.reason, exc.detail)
+            return
+        if nonfinite:
+            self.m.nonfinite.inc(nonfinite)
+        st = self._stream_for(frame, item.rate_hz)
+        st.frames += 1
+        st.bodies = len(frame.bodies)
+        st.last_arrival_ns = item.arrival_ns
+        st.arrivals[frame.seq] = item.arrival_ns
+        while len(st.arrivals) > _MAX_PENDING:
+            st.arrivals.popitem(last=False)
+        self.m.frames_in.inc(stream=frame.stream_id)
+        self.publisher.publish("raw", frame)
+        t0 = time.perf_counter()
+        outputs = st.engine.push(frame)
+        compute = time.perf_counter() - t0
+        if any(kind == "live" for kind, _ in outputs):
+            self.m.live_compute.observe(compute)
+        self._publish_outputs(st, outputs, trigger_ns=item.arrival_ns)
+
+    # ------------------------------------------------------------------ output
+    def _publish_outputs(self, st: _Stream, outputs, trigger_ns: int | None = None) -> None:
+        if not outputs:
+            return
+        now = time.monotonic_ns()
+        trigger = trigger_ns if trigger_ns is not None else st.last_arrival_ns
+        clean_seen = False
+        for kind, out in outputs:
+            self.publisher.publish(kind, out)
+            if out.filled:
+                if kind == "clean":
+                    self.m.filled.inc()
+                continue
+            if kind == "live":
+                arrival = st.arrivals.get(out.seq)
+                if arrival is not None:
+                    self.m.live_latency.observe((now - arrival) / 1e9)
+            elif kind == "clean":
+                arrival = st.arrivals.pop(out.seq, None)
+                if arrival is not None:
+                    self.m.clean_latency.observe((now - arrival) / 1e9)
+                clean_seen = True
+        if clean_seen and trigger:
+            self.m.clean_compute.observe(max(0.0, (time.monotonic_ns() - trigger) / 1e9))
+
+    def _poll_engines(self) -> None:
+        for st in self.streams.values():
+            poll = getattr(st.engine, "poll", None)
+            if poll is not None:
+                self._publish_outputs(st, poll())
+
+    def _sync_counters(self) -> None:
+        for kind in ("raw", "live", "clean", "meta"):
+            sent = self.publisher.counters.get(kind, 0)
+            delta = sent - self.m.frames_out.value(topic=kind)
+            if delta > 0:
+                self.m.frames_out.inc(delta, topic=kind)
+            dropped = self.publisher.drops.get(kind, 0)
+            delta = dropped - self.m.drops.value(topic=kind)
+            if delta > 0:
+                self.m.drops.inc(delta, topic=kind)
+        self.m.bodies.set(sum(st.bodies for st in self.streams.values()))
+        degraded = False
+        for st in self.streams.values():
+            metrics = getattr(st.engine, "metrics", None)
+            if metrics is not None:
+                try:
+                    degraded |= bool(metrics().get("degraded", False))
+                except Exception:  # metrics must never take the service down
+                    pass
+        self.m.degraded.set(1.0 if degraded else 0.0)
+
+    def status_line(self) -> str:
+        """One line: uptime, input rate, outputs, malformed, drops, bodies, latencies, degraded."""
+        now = time.monotonic()
+        total_in = sum(st.frames for st in self.streams.values())
+        t_prev, n_prev = self._last_status
+        rate = (total_in - n_prev) / max(now - t_prev, 1e-9)
+        self._last_status = (now, total_in)
+        malformed = sum(self.m.malformed.values().values())
+        drops = sum(self.m.drops.values().values())
+
+        def ms(h) -> str:
+            q = h.quantile(0.99)
+            return "-" if q != q else f"{q * 1e3:.1f}ms"
+
+        return (
+            f"streamfix serve: up {now - self._started:.0f}s | in {total_in} ({rate:.1f}/s) | "
+            f"live {self.m.frames_out.value(topic='live'):.0f} clean {self.m.frames_out.value(topic='clean'):.0f} | "
+            f"malformed {malformed:.0f} | drops {drops:.0f} | streams {len(self.streams)} "
+            f"bodies {self.m.bodies.value():.0f} | live p99 {ms(self.m.live_compute)} "
+            f"clean+ p99 {ms(self.m.clean_compute)} | degraded {'YES' if self.m.degraded.value() else 'no'}"
+        )
+
+    def _status(self, force: bool = False) -> None:
+        if self.status_interval_s <= 0 and not force:
+            return
+        print(self.status_line(), file=self.status_stream, flush=True)
+
+    # ------------------------------------------------------------------ loop
+    def run(self, *, max_turn_s: float = 0.05, drain_timeout_s: float = 2.0) -> int:
+        """Serve until stopped or the source ends; flush; close. Returns the exit code (0)."""
+        next_status = time.monotonic() + self.status_interval_s
+        next_sync = 0.0
+        try:
+            while not self._stop.is_set():
+                for item in self.source.poll(max_turn_s):
+                    self._handle(item)
+                self._poll_engines()
+                now = time.monotonic()
+                self.publisher.tick(now)
+                if now >= next_sync:
+                    self._sync_counters()
+                    next_sync = now + 0.25
+                if self.status_interval_s > 0 and now >= next_status:
+                    self._sync_counters()
+                    self._status()
+                    next_status = now + self.status_interval_s
+                if self.source.exhausted:
+                    break
+            self._drain(drain_timeout_s)
+            self._flush()
+        finally:
+            self._sync_counters()
+            self._status(force=self.status_interval_s > 0)
+            self.close()
+        return 0
+
+    def _drain(self, timeout_s: float) -> None:
+        """Handle what the source already holds (no waiting for new input)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            items = self.source.poll(0.0)
+            if not items:
+                break
+            for item in items:
+                self._handle(item)
+
+    def _flush(self) -> None:
+        for st in self.streams.values():
+            self._poll_engines()
+            self._publish_outputs(st, st.engine.flush())
+            close = getattr(st.engine, "close", None)
+            if close is not None:
+                close()
+
+    def close(self) -> None:
+        self.publisher.close()
+        self.source.close()
+        if self.metrics_server is not None:
+            self.metrics_server.close()
