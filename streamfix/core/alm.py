@@ -43,6 +43,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .interpolate import interpolate_linear
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
 from .wavelets import TemporalWavelet
 
@@ -220,31 +221,6 @@ def _svt(y: np.ndarray, tau: float) -> np.ndarray:
     return _from_paper_layout((u[:, :k] * s[:k]) @ vt[:k], n_frames)
 
 
-def _fill_missing(x: np.ndarray, observed: np.ndarray) -> np.ndarray:
-    """Linear interpolation over time of unobserved joints (constant beyond the ends).
-
-    ``x`` (T, S, 3), ``observed`` (T, S). Joints never observed get 0. Vectorised:
-    previous/next observed frame indices by running max/min.
-    """
-    n_frames = x.shape[0]
-    t = np.arange(n_frames)[:, None]
-    prev = np.where(observed, t, -1)
-    prev = np.maximum.accumulate(prev, axis=0)
-    nxt = np.where(observed, t, n_frames)
-    nxt = np.minimum.accumulate(nxt[::-1], axis=0)[::-1]
-    has_prev, has_next = prev >= 0, nxt < n_frames
-    pi = np.clip(prev, 0, n_frames - 1)
-    ni = np.clip(nxt, 0, n_frames - 1)
-    cols = np.arange(x.shape[1])[None, :]
-    xp, xn = x[pi, cols], x[ni, cols]
-    span = np.maximum(nxt - prev, 1)
-    w = np.where(has_prev & has_next, (t - prev) / span, np.where(has_prev, 0.0, 1.0))[..., None]
-    out = (1.0 - w) * np.nan_to_num(xp) + w * np.nan_to_num(xn)
-    out[~(has_prev | has_next)] = 0.0
-    out[observed] = x[observed]
-    return out
-
-
 def _validate(D: np.ndarray, observed: np.ndarray | None, bones: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     D = np.asarray(D, dtype=np.float64)
     if D.ndim != 3 or D.shape[2] != 3:
@@ -334,7 +310,8 @@ def solve(
             N = A.copy()
         else:
             A = zeros.copy()                                  # A^0 = 0
-            N = _fill_missing(Dc, observed)                   # N^0 = D (gaps filled)
+            # N^0 = D, gaps filled by linear interpolation over time (0 = mean if never seen)
+            N = np.nan_to_num(interpolate_linear(np.where(obs3, Dc, np.nan), observed)[0])
         E = zeros.copy()                                      # E^0 = 0
         Z1, Z2, Z3 = zeros.copy(), zeros.copy(), zeros.copy() # Z^0 = 0
         C = W.forward(A) if use_wav else zeros.copy()
@@ -356,7 +333,10 @@ def solve(
         # line 4-5, Eq. (20): N^{k+1} = N^k + (gamma J^T J + rho2 I)^-1 (-Z2 - rho2 (N - A) - gamma J^T F)
         if use_iso:
             for _ in range(p.gn_steps):
-                N = gauss_newton_step(N, A, Z2, rho2, p.gamma, iso_bones, iso_lengths, inc)
+                if p.center == "channel":  # bone vectors need absolute positions
+                    N = gauss_newton_step(N + offset, A + offset, Z2, rho2, p.gamma, iso_bones, iso_lengths, inc) - offset
+                else:  # a global offset cancels in n_i - n_j
+                    N = gauss_newton_step(N, A, Z2, rho2, p.gamma, iso_bones, iso_lengths, inc)
         # line 6, Eq. (11): C^{k+1} = S_{mu/rho3}(W A^k - Z3/rho3)
         if use_wav:
             V = W.forward(A) - Z3 / rho3

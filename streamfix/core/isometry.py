@@ -53,17 +53,49 @@ def bone_lengths_per_frame(positions: np.ndarray, bones: np.ndarray) -> np.ndarr
     return np.linalg.norm(bone_vectors(positions, bones), axis=-1)
 
 
+def _shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
+    """Per column, the middle of the shortest interval holding ``fraction`` of the finite values.
+
+    ``values`` (T, B) with NaN = no sample. A mode estimator ("shorth"): with clean
+    frames agreeing on one length and corrupted frames spread out, the densest
+    interval sits on the clean length even when most frames are corrupted (where a
+    median is dragged off). Vectorised over columns. Columns without samples -> NaN.
+    """
+    v = np.sort(values, axis=0)                       # NaN sort last
+    n = np.isfinite(v).sum(axis=0)                    # (B,)
+    h = np.maximum(np.ceil(fraction * n).astype(np.intp), 1)
+    idx = np.arange(v.shape[0])[:, None]
+    hi = np.minimum(idx + h[None, :] - 1, v.shape[0] - 1)
+    width = np.take_along_axis(v, hi, axis=0) - v
+    width[(idx + h[None, :] > n[None, :]) | ~np.isfinite(width)] = np.inf
+    start = np.argmin(width, axis=0)                  # (B,)
+    mid = np.minimum(start + (h - 1) // 2, v.shape[0] - 1)
+    out = v[mid, np.arange(v.shape[1])]
+    out[n == 0] = np.nan
+    return out
+
+
 def estimate_bone_lengths(
     positions: np.ndarray,
     bones: np.ndarray,
     observed: np.ndarray | None = None,
     confidence: np.ndarray | None = None,
+    method: str = "mode",
+    fraction: float = 0.1,
 ) -> np.ndarray:
-    """Robust ``(B,)`` bone lengths (metres): per bone, the median over frames.
+    """Robust ``(B,)`` bone lengths (metres) from a possibly corrupted motion.
 
     Uses only frames where both ends are observed (and, when ``confidence`` is given,
     where both ends have the highest confidence available for that bone, e.g. tracked
-    rather than inferred). The median ignores up to half the frames being outliers.
+    rather than inferred). ``method``:
+
+    * ``'mode'`` (default): middle of the shortest length interval holding ``fraction``
+      of those frames. Outliers add noise to *both* ends' coordinates, so at 20 % of
+      corrupted coordinates ~74 % of frames have a corrupted bone and the median is
+      biased (measured: 5.5 cm mean error on CMU 131_01); the clean frames still form
+      the densest cluster, which the mode finds (measured below 1 mm).
+    * ``'median'``: the per-bone median over frames (robust while < 50 % are corrupted).
+
     A bone never observed gets NaN.
     """
     p = np.asarray(positions, dtype=np.float64)
@@ -84,11 +116,17 @@ def estimate_bone_lengths(
         best = c.max(axis=0, keepdims=True)
         ok &= c >= best
     vals = np.where(ok, lengths, np.nan)
-    out = np.full(len(b), np.nan)
-    seen = ok.any(axis=0)
-    if seen.any():
-        out[seen] = np.nanmedian(vals[:, seen], axis=0)
-    return out
+    if method == "mode":
+        if not 0.0 < fraction <= 1.0:
+            raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+        return _shorth_mode(vals, fraction)
+    if method == "median":
+        out = np.full(len(b), np.nan)
+        seen = ok.any(axis=0)
+        if seen.any():
+            out[seen] = np.nanmedian(vals[:, seen], axis=0)
+        return out
+    raise ValueError(f"method must be 'mode' or 'median', got {method!r}")
 
 
 def isometry_residual(positions: np.ndarray, bones: np.ndarray, bone_lengths: np.ndarray) -> np.ndarray:
@@ -144,19 +182,23 @@ def gauss_newton_step(
     if len(b) == 0 or gamma == 0:
         return A - Z2 / rho2  # minimiser of <Z2, N - A> + rho2/2 ||N - A||^2
     M = incidence_matrix(b, n_joints) if incidence is None else incidence
-    u = N[:, b[:, 0], :] - N[:, b[:, 1], :]                      # (T, B, 3)
-    F = np.einsum("tbc,tbc->tb", u, u) - lengths**2               # Eq. (16)
+    i, j = b[:, 0], b[:, 1]
+    u = N[:, i, :] - N[:, j, :]                                   # (T, B, 3)
+    F = np.sum(u * u, axis=-1) - lengths**2                       # Eq. (16), (T, B)
+
+    def jt(y: np.ndarray) -> np.ndarray:
+        """J^T y for per-bone weights y (T, B): scatter 2 u y to parent (+) and child (-)."""
+        v = 2.0 * u * y[..., None]                                # (T, B, 3)
+        return np.tensordot(v, M, axes=([1], [0])).transpose(0, 2, 1)  # (T, S, 3)
+
     # g = -Z2 - rho2 (N - A) - gamma J^T F            (right-hand side of Eq. 20)
-    jtf = 2.0 * np.einsum("bs,tbc->tsc", M, u * F[..., None])     # J^T F, (T, S, 3)
-    g = -Z2 - rho2 * (N - A) - gamma * jtf
-    # J g: (J g)_tb = 2 u_tb . (M g_t)_b
-    Mg = np.einsum("bs,tsc->tbc", M, g)
-    jg = 2.0 * np.einsum("tbc,tbc->tb", u, Mg)
+    g = -Z2 - rho2 * (N - A) - gamma * jt(F)
+    # J g: (J g)_tb = 2 u_tb . (g_i - g_j)
+    jg = 2.0 * np.sum(u * (g[:, i, :] - g[:, j, :]), axis=-1)    # (T, B)
     # K_t = rho2/gamma I + J_t J_t^T,  (J J^T)_bb' = 4 (M M^T)_bb' (u_b . u_b')
-    MMt = M @ M.T
-    K = 4.0 * MMt[None] * np.einsum("tbc,tdc->tbd", u, u)
-    K[:, np.arange(len(b)), np.arange(len(b))] += rho2 / gamma
+    K = 4.0 * (M @ M.T)[None] * np.matmul(u, u.transpose(0, 2, 1))
+    diag = np.arange(len(b))
+    K[:, diag, diag] += rho2 / gamma
     y = np.linalg.solve(K, jg[..., None])[..., 0]                # (T, B)
-    jty = 2.0 * np.einsum("bs,tbc->tsc", M, u * y[..., None])     # J^T K^-1 J g
-    delta = (g - jty) / rho2
+    delta = (g - jt(y)) / rho2                                    # Woodbury
     return N + delta
