@@ -1,1 +1,77 @@
-"""File formats: readers and writers for motions (Kinect v2 CSV, BVH, C3D, recordings)."""
+"""File formats: readers and writers for motions (Kinect v2 CSV, BVH, C3D, recordings).
+
+``read_motion(path)`` / ``write_motion(motion, path)`` dispatch on the extension:
+
+========  ==================================  =========================================
+``.csv``  Kinect v2 body CSV                  :mod:`streamfix.io.kinect_csv`
+``.bvh``  BVH (read only; FK to positions)    :mod:`streamfix.io.bvh`
+``.c3d``  C3D markers (ezc3d)                 :mod:`streamfix.io.c3d`
+``.sfrec``  the project's recording format    :mod:`streamfix.io.recording`
+========  ==================================  =========================================
+
+Malformed files raise :class:`MotionFileError` (a ``ValueError``) naming the file,
+line or frame, and what is wrong.
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from ..motion import Motion
+from .errors import MotionFileError
+from .resample import resample_motion
+
+__all__ = [
+    "read_motion",
+    "write_motion",
+    "resample_motion",
+    "MotionFileError",
+    "READ_FORMATS",
+    "WRITE_FORMATS",
+]
+
+# extension -> (module, reader, writer or None)
+_FORMATS = {
+    ".csv": ("kinect_csv", "read_kinect_csv", "write_kinect_csv"),
+    ".bvh": ("bvh", "read_bvh", None),
+    ".c3d": ("c3d", "read_c3d", "write_c3d"),
+    ".sfrec": ("recording", "read_recording", "write_recording"),
+}
+READ_FORMATS = tuple(_FORMATS)
+WRITE_FORMATS = tuple(ext for ext, (_, _, w) in _FORMATS.items() if w)
+
+
+def _handler(path: str | Path, which: int):
+    ext = Path(path).suffix.lower()
+    if ext not in _FORMATS:
+        supported = READ_FORMATS if which == 1 else WRITE_FORMATS
+        raise ValueError(
+            f"{Path(path).name}: unknown motion file extension {ext or '(none)'!r}; "
+            f"supported: {', '.join(supported)}"
+        )
+    module_name, reader, writer = _FORMATS[ext]
+    name = reader if which == 1 else writer
+    if name is None:
+        raise ValueError(
+            f"{Path(path).name}: {ext} files can be read but not written; writable: {', '.join(WRITE_FORMATS)}"
+        )
+    try:
+        module = importlib.import_module(f"{__name__}.{module_name}")
+    except ModuleNotFoundError as exc:
+        if exc.name == f"{__name__}.{module_name}":
+            raise ValueError(f"{Path(path).name}: the {ext} format module streamfix.io.{module_name} is not available") from None
+        raise
+    fn = getattr(module, name, None)
+    if fn is None:
+        raise ValueError(f"{Path(path).name}: streamfix.io.{module_name} has no {name}()")
+    return fn
+
+
+def read_motion(path: str | Path, **kwargs) -> Motion:
+    """Read any supported motion file (by extension); ``kwargs`` go to the format's reader."""
+    return _handler(path, 1)(path, **kwargs)
+
+
+def write_motion(motion: Motion, path: str | Path, **kwargs) -> None:
+    """Write a motion in the format its extension names (``.csv``, ``.c3d``, ``.sfrec``)."""
+    _handler(path, 2)(motion, path, **kwargs)
