@@ -1,0 +1,191 @@
+"""Methods under comparison, file loading for protocols, and protocol discovery.
+
+A *method* maps a corrupted window to a cleaned one::
+
+    method(positions (T,J,3) m NaN=missing, confidence (T,J), bones (B,2), rate_hz) -> (T,J,3)
+
+Names follow issue 2: ``input`` (the corrupted input itself), ``streamfix`` (the
+default pipeline, :func:`streamfix.core.pipeline.clean_window` on the whole clip),
+``yang``/``li``/``wang`` (Algorithm 1 and its predecessors via
+:func:`streamfix.core.alm.solve`, solver defaults), ``one_euro``, ``holt`` (Kinect SDK
+defaults; inferred joints get the SDK's doubled radii), ``savgol``, ``median_savgol``,
+``linear``, ``spline`` (gap interpolation only; observed samples pass unchanged).
+All methods get the same information: the corrupted positions and the sensor
+confidence, never the ground truth (bone lengths are estimated from the input).
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..motion import Motion
+
+__all__ = [
+    "METHODS",
+    "ALL_METHODS",
+    "run_method",
+    "load_motion",
+    "discover_protocols",
+    "PROTOCOL_MODULES",
+    "is_kinect_file",
+]
+
+Method = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
+
+
+def _input(x, conf, bones, rate):
+    return x.copy()
+
+
+def _streamfix(x, conf, bones, rate):
+    from ..core.pipeline import clean_window
+
+    return clean_window(x, conf, bones, None, rate).positions
+
+
+def _solver(mode: str) -> Method:
+    def run(x, conf, bones, rate):
+        from ..core.alm import SolverParams, solve
+
+        return solve(x, conf > 0, bones, None, SolverParams(mode=mode)).positions
+
+    run.__name__ = mode
+    return run
+
+
+def _one_euro(x, conf, bones, rate):
+    from ..core.filters import one_euro
+
+    return one_euro(x, rate, conf > 0)
+
+
+def _holt(x, conf, bones, rate):
+    from ..core.filters import holt
+
+    return holt(x, conf > 0, (conf > 0) & (conf < 1))
+
+
+def _savgol(x, conf, bones, rate):
+    from ..core.filters import savgol
+
+    return savgol(x, rate, conf > 0)
+
+
+def _median_savgol(x, conf, bones, rate):
+    from ..core.filters import median_savgol
+
+    return median_savgol(x, rate, conf > 0)
+
+
+def _interp(kind: str) -> Method:
+    def run(x, conf, bones, rate):
+        from ..core.interpolate import interpolate
+
+        return interpolate(x, conf > 0, kind)[0]
+
+    run.__name__ = kind
+    return run
+
+
+METHODS: dict[str, Method] = {
+    "input": _input,
+    "streamfix": _streamfix,
+    "yang": _solver("yang"),
+    "li": _solver("li"),
+    "wang": _solver("wang"),
+    "one_euro": _one_euro,
+    "holt": _holt,
+    "savgol": _savgol,
+    "median_savgol": _median_savgol,
+    "linear": _interp("linear"),
+    "spline": _interp("spline"),
+}
+ALL_METHODS = tuple(METHODS)
+
+
+def run_method(name: str, positions: np.ndarray, confidence: np.ndarray, bones: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Run method ``name`` (one of :data:`ALL_METHODS`) on a corrupted window."""
+    try:
+        fn = METHODS[name]
+    except KeyError:
+        raise ValueError(f"unknown method {name!r}; expected one of: {', '.join(ALL_METHODS)}") from None
+    x = np.asarray(positions, dtype=np.float64)
+    conf = np.where(np.isfinite(x).all(axis=2), np.asarray(confidence, dtype=np.float64), 0.0)
+    return np.asarray(fn(np.where(conf[..., None] > 0, x, np.nan), conf, bones, float(rate_hz)), dtype=np.float64)
+
+
+def is_kinect_file(path: str | Path) -> bool:
+    return Path(path).suffix.lower() == ".csv"
+
+
+def _read(path: Path) -> Motion:
+    try:
+        from ..io import read_motion  # the I/O layer's dispatcher, when present
+    except ImportError:
+        read_motion = None
+    if read_motion is not None:
+        return read_motion(path)
+    ext = path.suffix.lower()
+    if ext == ".bvh":
+        from ..io.bvh import read_bvh
+
+        return read_bvh(path)
+    if ext == ".csv":
+        from ..io.kinect_csv import read_kinect_csv
+
+        return read_kinect_csv(path)
+    raise ValueError(f"{path}: cannot read {ext!r} files (expected .bvh or .csv)")
+
+
+def load_motion(path: str | Path, rate_hz: float | None = None) -> Motion:
+    """Read a motion file and bring it to ``rate_hz`` (None = native rate).
+
+    An integer ratio (120 -> 30 Hz) is exact decimation when no resampler is
+    available; otherwise ``streamfix.core.resample`` does it.
+    """
+    path = Path(path)
+    motion = _read(path)
+    if rate_hz is None or abs(rate_hz - motion.rate_hz) < 1e-6 * motion.rate_hz:
+        return motion
+    try:
+        from ..core import resample as _rs
+    except ImportError:
+        _rs = None
+    if _rs is not None and hasattr(_rs, "resample_motion"):
+        return _rs.resample_motion(motion, rate_hz)
+    ratio = motion.rate_hz / rate_hz
+    step = int(round(ratio))
+    if step >= 1 and abs(ratio - step) < 1e-6:
+        return Motion(
+            motion.positions[::step].copy(),
+            motion.confidence[::step].copy(),
+            motion.timestamps[::step].copy(),
+            rate_hz,
+            motion.skeleton,
+            meta=dict(motion.meta),
+        )
+    raise ValueError(
+        f"{path}: cannot resample {motion.rate_hz:g} Hz to {rate_hz:g} Hz "
+        "(only integer decimation without streamfix.core.resample)"
+    )
+
+
+# Modules under streamfix.evaluation that may define PROTOCOLS = {name: run}.
+PROTOCOL_MODULES = ("noise_gaps", "kinect", "occlusion", "long_gaps")
+
+
+def discover_protocols() -> dict[str, Callable]:
+    """``{protocol name: run}`` from every protocol module present (absent ones skipped)."""
+    found: dict[str, Callable] = {}
+    for name in PROTOCOL_MODULES:
+        try:
+            module = importlib.import_module(f"streamfix.evaluation.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"streamfix.evaluation.{name}":
+                continue
+            raise
+        found.update(getattr(module, "PROTOCOLS", {}))
+    return found
