@@ -1,0 +1,1002 @@
+"""The streaming engine: frames in, a causal ``live`` and a refined ``clean`` stream out.
+
+No sockets here: :class:`StreamEngine` consumes :class:`~streamfix.frames.SkeletonFrame`
+objects and returns ``(kind, frame)`` pairs, ``kind`` in ``{'live', 'clean'}``.
+``streamfix serve`` wires it to ZeroMQ; ``streamfix clean`` runs recorded files through
+the very same engine in synchronous mode, so the two agree.
+
+Windows, hop, lookahead and overlap-add
+---------------------------------------
+Per body, frames are numbered ``n = 0, 1, ...`` from the body's first frame (its
+*timeline*; it also advances while the body is briefly absent, see below). With
+window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
+
+* window ``k`` ends at ``e_k = L + 1 + k H`` (exclusive) and covers frames
+  ``[max(0, e_k - W), e_k)``; it is solved as soon as frame ``e_k - 1`` has arrived,
+  warm-started from the previous window's solver state shifted by the hop
+  (``state.shifted(e_k - e_{k-1})``) when both windows have the full length ``W``;
+* the solution of window ``k`` is blended into every not-yet-emitted frame it covers
+  with the Hann taper ``w_i = 1e-3 + sin^2(pi (i + 1/2) / T)`` (``i`` the frame's
+  position in the window, ``T`` its length), normalised per frame: the clean value of
+  frame ``n`` is ``sum_k w_k x_k / sum_k w_k`` over the windows ``k`` with
+  ``n < e_k <= n + L + 1``, i.e. exactly the windows that have been solved when frame
+  ``n + L`` arrives (there is at least one because ``H <= L + 1``). The weights
+  therefore sum to 1 for every frame, and the mean is accumulated incrementally as
+  ``m <- m + w / (sum w) (x - m)``, so a window solver that returns its input leaves
+  the input unchanged bit for bit.
+* frame ``n`` is emitted on ``clean`` when frame ``n + L`` has been pushed: the
+  **latency is fixed at L frame periods (L / rate_hz s) plus the window's compute
+  time**, and in steady state every push emits exactly one clean frame. At shutdown
+  (:meth:`StreamEngine.flush`) or when a body times out, a last window ending at the
+  body's newest frame is solved and the remaining frames are emitted with less
+  lookahead.
+
+Offline cleaning is a pure function of the input sequence: in the synchronous mode
+(the default) nothing depends on timing, so the same input gives the same output.
+
+Bodies
+------
+A body (``BodyFrame.body_id``) appears with its first frame. While it is absent from
+the stream its timeline keeps advancing with all-missing frames (the solver bridges
+them), for up to ``body_timeout_s``; within that grace period a returning body is the
+same body. After it, the body is finalised (its pending frames are emitted) and
+forgotten; if the same id returns later it starts a new timeline, re-using the bone
+lengths estimated for it before (``bodies_reidentified`` counts these). The clean and
+live output of a frame hold exactly the bodies of the input frame, in input order.
+
+Dropped sensor frames and sequence numbers
+------------------------------------------
+A gap between consecutive sensor timestamps larger than ``drop_gap_factor`` (1.5)
+frame periods means the sensor dropped ``round(gap * rate_hz) - 1`` frames. The
+engine synthesises them (evenly spaced timestamps, the bodies of the frame before
+the gap, every joint ``recovered``, confidence 0) with ``SkeletonFrame.filled =
+True`` and emits them on ``live`` and ``clean`` like any frame, so the output has no
+holes. Gaps longer than ``max_fill_s`` are a discontinuity, not a drop: the bodies
+are finalised and the stream restarts, nothing is synthesised.
+
+**Sequence numbers of output frames**: the output of a stream is numbered
+consecutively, ``seq = seq0 + k``, where ``seq0`` is the ``seq`` of the stream's first
+input frame and ``k`` counts the frames the engine has produced for the stream (real
+and filled, in order). The same frame has the same ``seq`` on ``live`` and ``clean``.
+Without drops, output ``seq`` equals input ``seq``; after ``f`` filled frames, a real
+frame's output ``seq`` is its input-order index plus ``seq0`` (input ``seq`` values are
+only used to reject duplicates and reordered frames). Real frames keep their
+``sensor_time_ns``, so a subscriber can always match input and output on it.
+A frame whose ``seq`` is not greater than the previous one's, or whose sensor time
+goes backwards, is late: it is counted (``frames_dropped_late``) and skipped.
+
+Degradation (threaded mode)
+---------------------------
+:class:`ThreadedStreamEngine` solves windows in a worker thread; ``push`` never waits
+for it. When the solver falls behind (a window is scheduled while another is still
+pending, or the last solve took longer than the hop duration ``H / rate_hz``) the
+engine degrades one level at a time: 1 = half the solver iterations, 2 = also twice
+the hop, 3 = quarter iterations and the largest hop (``max_hop``). It recovers a level
+after ``recover_after`` consecutive healthy windows. When more than
+``max_pending_windows`` windows are queued a new window is skipped; when a frame
+has waited ``max_clean_delay_s`` beyond its lookahead for a stalled window, that
+window is abandoned. Frames no solved window covers fall back to their ``live``
+value (flagged recovered where the live path recovered them). Input is never
+blocked or dropped; every input frame still appears once on ``clean``.
+:meth:`StreamEngine.metrics` reports the level, hop, iterations and counters.
+"""
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..frames import BodyFrame, SkeletonFrame
+from ..skeletons import Skeleton
+from .live import LiveConfig, LivePath
+from .ring import RingBuffer
+
+__all__ = [
+    "EngineConfig",
+    "StreamEngine",
+    "ThreadedStreamEngine",
+    "WindowOutput",
+    "WindowSolver",
+    "alm_window_solver",
+    "default_window_solver",
+    "hann_weights",
+    "Histogram",
+]
+
+WindowSolver = Callable[..., Any]
+"""``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,
+rate_hz, config=..., state=None, init=None)`` returning an object with ``.positions
+(T,J,3)``, ``.recovered (T,J)``, ``.state``, ``.iterations``, ``.converged`` -- the
+signature of :func:`streamfix.core.pipeline.clean_window`."""
+
+
+# --------------------------------------------------------------------------- config
+@dataclass(frozen=True)
+class EngineConfig:
+    """Streaming engine settings (frames, seconds, Hz).
+
+    window W, hop H, lookahead L: frames, ``1 <= H <= L + 1 <= W``; the clean output's
+    latency is ``L / rate_hz`` s plus compute. rate_hz: nominal sensor rate (drop
+    detection, filters). live: the live path's settings. max_iterations: solver
+    iteration cap per window (None = the solver's default). solver_config: passed as
+    ``config=`` to the window solver (None = its default). bone_lengths: fixed
+    ``(B,)`` bone lengths in metres (None = estimated robustly per body).
+    degrade: allow degradation in threaded mode. degraded_iterations: iterations at
+    level 1 (None = half of max_iterations, or 10 if that is None). max_hop: hop at the
+    deepest level (None = W // 2). max_pending_windows: queue length beyond which new
+    windows are skipped. max_clean_delay_s: how long beyond the lookahead a frame may
+    wait for a stalled window before it is abandoned. recover_after: healthy windows
+    before recovering a level. body_timeout_s: grace period of an absent body.
+    fill_drops: synthesise dropped frames. drop_gap_factor: a timestamp gap above this
+    many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
+    threaded: solve windows in a worker thread (the service's mode). lookahead_s: the
+    lookahead in seconds instead of frames (rounded at ``rate_hz``; wins if given).
+    """
+
+    window: int = 60
+    hop: int = 5
+    lookahead: int = 15
+    rate_hz: float = 30.0
+    live: LiveConfig = field(default_factory=LiveConfig)
+    max_iterations: int | None = None
+    solver_config: Any = None
+    bone_lengths: tuple[float, ...] | None = None
+    degrade: bool = True
+    degraded_iterations: int | None = None
+    max_hop: int | None = None
+    max_pending_windows: int = 4
+    max_clean_delay_s: float = 2.0
+    recover_after: int = 8
+    body_timeout_s: float = 1.0
+    fill_drops: bool = True
+    drop_gap_factor: float = 1.5
+    max_fill_s: float = 1.0
+    threaded: bool = False
+    lookahead_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.lookahead_s is not None:  # seconds win over frames
+            if not self.lookahead_s >= 0:
+                raise ValueError(f"lookahead_s must be >= 0 s, got {self.lookahead_s}")
+            object.__setattr__(self, "lookahead", int(round(self.lookahead_s * self.rate_hz)))
+            object.__setattr__(self, "lookahead_s", None)
+        W, H, L = self.window, self.hop, self.lookahead
+        if W < 4:
+            raise ValueError(f"window must be >= 4 frames (typically 50-300), got {W}")
+        if not 0 <= L <= W - 1:
+            raise ValueError(f"lookahead must be in 0..window-1 = 0..{W - 1} frames, got {L}")
+        if not 1 <= H <= L + 1:
+            raise ValueError(f"hop must be in 1..lookahead+1 = 1..{L + 1} frames, got {H}")
+        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"rate_hz must be a positive number, got {self.rate_hz}")
+        if self.max_hop is not None and not H <= self.max_hop <= W:
+            raise ValueError(f"max_hop must be in hop..window = {H}..{W}, got {self.max_hop}")
+        if self.max_iterations is not None and self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if self.drop_gap_factor <= 1.0:
+            raise ValueError(f"drop_gap_factor must be > 1 frame period, got {self.drop_gap_factor}")
+        if self.max_pending_windows < 1:
+            raise ValueError(f"max_pending_windows must be >= 1, got {self.max_pending_windows}")
+
+    @property
+    def latency_s(self) -> float:
+        """Fixed latency of the clean output before compute (the lookahead), seconds."""
+        return self.lookahead / self.rate_hz
+
+    @property
+    def hop_limit(self) -> int:
+        return self.max_hop if self.max_hop is not None else max(self.hop, self.window // 2)
+
+
+# --------------------------------------------------------------------------- solvers
+@dataclass
+class WindowOutput:
+    """What a window solver returns (the fields the engine uses)."""
+
+    positions: np.ndarray
+    recovered: np.ndarray
+    state: Any = None
+    iterations: int = 0
+    converged: bool = True
+
+
+def alm_window_solver(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray | None,
+    rate_hz: float,
+    config: Any = None,
+    state: Any = None,
+    init: np.ndarray | None = None,
+) -> WindowOutput:
+    """Adapter: :func:`streamfix.core.alm.solve` (Yang et al. Algorithm 1) as a window solver.
+
+    ``config`` is a :class:`~streamfix.core.alm.SolverParams` (None = defaults).
+    ``recovered`` = unobserved, or observed but moved by the sparse term E by > 2 cm.
+    """
+    from ..core.alm import SolverParams, solve
+
+    params = config if config is not None else SolverParams()
+    observed = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
+    res = solve(positions, observed, bones, bone_lengths, params, init=init, state=state)
+    err = np.linalg.norm(np.nan_to_num(res.sparse_error), axis=2)
+    recovered = ~observed | (err > 0.02)
+    return WindowOutput(res.positions, recovered, res.state, int(res.iterations), bool(res.converged))
+
+
+def default_window_solver() -> WindowSolver:
+    """``streamfix.core.pipeline.clean_window`` when present, else the ALM adapter."""
+    try:
+        from ..core.pipeline import clean_window  # type: ignore[attr-defined]
+    except ImportError:
+        return alm_window_solver
+    return clean_window
+
+
+def _with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any:
+    """A copy of a solver config with its iteration cap set to ``n`` (if it has one)."""
+    if n is None:
+        return config
+    if config is None:
+        if solver is alm_window_solver:
+            from ..core.alm import SolverParams
+
+            return SolverParams(max_iter=n)
+        try:
+            import inspect
+
+            default = inspect.signature(solver).parameters["config"].default
+        except (KeyError, TypeError, ValueError):
+            return None
+        if default is inspect.Parameter.empty or default is None:
+            return None
+        config = default
+    if not dataclasses.is_dataclass(config):
+        return config
+    names = {f.name for f in dataclasses.fields(config)}
+    for key in ("max_iterations", "max_iter", "solver_max_iter", "iterations"):
+        if key in names:
+            return dataclasses.replace(config, **{key: n})
+    for key in ("solver", "params", "solver_params", "alm"):
+        if key in names:
+            inner = getattr(config, key)
+            new_inner = _with_max_iterations(inner, n, solver) if inner is not None else None
+            if new_inner is not inner:
+                return dataclasses.replace(config, **{key: new_inner})
+    return config
+
+
+def hann_weights(n: int) -> np.ndarray:
+    """Overlap-add taper ``1e-3 + sin^2(pi (i + 1/2) / n)``, ``i = 0..n-1`` (never 0)."""
+    i = np.arange(n, dtype=np.float64)
+    return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
+
+
+# --------------------------------------------------------------------------- metrics
+class Histogram:
+    """Fixed-bucket histogram of durations (s) plus a window of recent samples."""
+
+    BOUNDS = (0.0001, 0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+
+    def __init__(self, recent: int = 2048) -> None:
+        self.counts = np.zeros(len(self.BOUNDS) + 1, dtype=np.int64)
+        self.total = 0.0
+        self.n = 0
+        self.recent: deque[float] = deque(maxlen=recent)
+
+    def observe(self, seconds: float) -> None:
+        self.counts[int(np.searchsorted(self.BOUNDS, seconds))] += 1
+        self.total += seconds
+        self.n += 1
+        self.recent.append(seconds)
+
+    def snapshot(self) -> dict:
+        rec = np.asarray(self.recent) if self.recent else np.zeros(0)
+        return {
+            "bounds_s": list(self.BOUNDS),  # upper bounds; last count is +Inf
+            "counts": self.counts.tolist(),  # per bucket, not cumulative
+            "sum_s": self.total,
+            "count": self.n,
+            "p50_s": float(np.percentile(rec, 50)) if rec.size else 0.0,
+            "p99_s": float(np.percentile(rec, 99)) if rec.size else 0.0,
+            "max_s": float(rec.max()) if rec.size else 0.0,
+        }
+
+
+# --------------------------------------------------------------------------- internals
+class _Job:
+    """One window to solve for one body: frames [start, end) of its timeline."""
+
+    __slots__ = (
+        "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
+        "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final",
+    )
+
+    def __init__(self, body: "_Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
+        self.body = body
+        self.start, self.end = start, end
+        self.positions, self.confidence = positions, confidence
+        self.bone_lengths = bone_lengths
+        self.iterations = iterations
+        self.status = "pending"  # pending -> done | skipped | abandoned
+        self.result_pos = self.result_rec = None
+        self.solve_s = 0.0
+        self.n_iter = 0
+        self.converged = False
+        self.error: str | None = None
+        self.final = final
+
+
+class _Body:
+    """Everything the engine keeps about one tracked body of one stream."""
+
+    def __init__(self, body_id: int, g0: int, cfg: EngineConfig, skeleton: Skeleton, backlog: int, prior_lengths=None):
+        J = skeleton.n_joints
+        B = skeleton.n_bones
+        self.body_id = body_id
+        self.g0 = g0  # stream frame index of timeline frame 0
+        self.ring = RingBuffer(cfg.window, J)
+        cap = cfg.window + backlog + cfg.hop_limit + 2
+        self.cap = cap
+        # per-frame output accumulators, indexed by timeline frame % cap
+        self.mean = np.zeros((cap, J, 3))
+        self.den = np.zeros((cap, J))
+        self.recw = np.zeros((cap, J))
+        self.live = np.full((cap, J, 3), np.nan)
+        self.live_rec = np.zeros((cap, J), dtype=bool)
+        self.conf = np.zeros((cap, J))
+        self.valid = np.zeros((cap, J), dtype=bool)
+        self.present = np.zeros(cap, dtype=bool)
+        self.count = 0  # frames in the timeline
+        self.final_upto = 0  # next frame to finalise
+        self.next_end = cfg.lookahead + 1  # end of the next window to schedule
+        self.last_scheduled_end = 0
+        self.last_processed_end = 0
+        self.last_present = -1
+        self.absent = 0  # consecutive absent frames
+        self.jobs: deque[_Job] = deque()
+        self.ending = False
+        # worker-owned warm-start state
+        self.solver_state = None
+        self.solver_state_end = -1
+        # bone lengths: input samples (both ends tracked) and clean samples
+        self.in_bones = np.full((300, B), np.nan)
+        self.in_bones_n = 0
+        self.clean_bones = np.full((150, B), np.nan)
+        self.clean_bones_n = 0
+        self.prior_lengths = prior_lengths
+        self.live_path: LivePath | None = None
+
+
+class _Pending:
+    """A stream frame awaiting the clean values of its bodies."""
+
+    __slots__ = ("seq", "time_ns", "filled", "order", "slots", "missing")
+
+    def __init__(self, seq: int, time_ns: int, filled: bool, order: list[int]):
+        self.seq, self.time_ns, self.filled = seq, time_ns, filled
+        self.order = order
+        self.slots: dict[int, BodyFrame] = {}
+        self.missing = len(order)
+
+
+class _Stream:
+    def __init__(self, stream_id: str, seq0: int):
+        self.stream_id = stream_id
+        self.seq0 = seq0
+        self.g = -1  # index of the newest stream frame
+        self.last_in_seq: int | None = None
+        self.last_time_ns: int | None = None
+        self.bodies: dict[int, _Body] = {}  # active bodies
+        self.ending: list[_Body] = []  # bodies that left, finishing their last window
+        self.last_present: list[int] = []  # body ids of the newest real frame
+        self.pending: dict[int, _Pending] = {}
+        self.emit_g = 0
+        self.retired: dict[int, np.ndarray | None] = {}
+
+
+# --------------------------------------------------------------------------- engine
+class StreamEngine:
+    """Per-stream, per-body streaming cleaner (synchronous unless ``threaded``).
+
+    ``push(frame)`` returns ``[('live', frame), ..., ('clean', frame), ...]``: one live
+    frame per input frame (plus one per synthesised dropped frame), and the clean
+    frames that left the lookahead. ``flush()`` emits every pending frame.
+    ``window_solver``: see :data:`WindowSolver`; None = :func:`default_window_solver`.
+    """
+
+    def __init__(
+        self,
+        skeleton: Skeleton,
+        config: EngineConfig | None = None,
+        window_solver: WindowSolver | None = None,
+        *,
+        threaded: bool | None = None,
+    ) -> None:
+        self.skeleton = skeleton
+        self.cfg = config if config is not None else EngineConfig()
+        self.solver = window_solver if window_solver is not None else default_window_solver()
+        self.bones = skeleton.bone_array
+        self.n_joints = skeleton.n_joints
+        if self.cfg.bone_lengths is not None and len(self.cfg.bone_lengths) != skeleton.n_bones:
+            raise ValueError(
+                f"bone_lengths has {len(self.cfg.bone_lengths)} values, skeleton {skeleton.name!r} "
+                f"has {skeleton.n_bones} bones"
+            )
+        self._fixed_lengths = (
+            None if self.cfg.bone_lengths is None else np.asarray(self.cfg.bone_lengths, dtype=np.float64)
+        )
+        self.period_ns = 1e9 / self.cfg.rate_hz
+        self._backlog = int(round(self.cfg.max_clean_delay_s * self.cfg.rate_hz))
+        self._timeout = max(1, int(round(self.cfg.body_timeout_s * self.cfg.rate_hz)))
+        self.streams: dict[str, _Stream] = {}
+        threaded = self.cfg.threaded if threaded is None else bool(threaded)
+        self.threaded = threaded
+        # degradation
+        self.level = 0
+        self.hop = self.cfg.hop
+        self._healthy = 0
+        self._done_at_change = 0
+        self._pending_at_change = 0
+        self._last_solve_s = 0.0
+        # metrics
+        self.counters: dict[str, int] = {
+            k: 0
+            for k in (
+                "frames_in", "frames_rejected", "frames_dropped_late", "frames_filled",
+                "live_out", "clean_out", "bodies_seen", "bodies_reidentified", "bodies_timed_out",
+                "windows_scheduled", "windows_solved", "windows_skipped", "windows_abandoned",
+                "solver_errors", "solver_iterations", "solver_not_converged", "joints_recovered",
+                "gaps_not_filled", "degrade_events",
+            )
+        }
+        self.live_hist = Histogram()
+        self.solve_hist = Histogram()
+        self._last_iterations = 0
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._inflight = 0  # submitted, not finished (threaded)
+        self._done_total = 0
+        self._queue = None
+        self._thread = None
+        if threaded:
+            import queue
+
+            self._queue = queue.Queue()
+            self._thread = threading.Thread(target=self._worker, name="streamfix-solver", daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ public API
+    def push(self, frame: SkeletonFrame) -> list[tuple[str, SkeletonFrame]]:
+        """Feed one input frame; returns live (always) and clean (when due) frames."""
+        self._validate(frame)
+        out: list[tuple[str, SkeletonFrame]] = []
+        st = self.streams.get(frame.stream_id)
+        if st is None:
+            st = self.streams[frame.stream_id] = _Stream(frame.stream_id, int(frame.seq))
+        elif self._is_late(st, frame):
+            self.counters["frames_dropped_late"] += 1
+            return out
+        self.counters["frames_in"] += 1
+        # ---- dropped sensor frames
+        if st.last_time_ns is not None and self.cfg.fill_drops:
+            gap_ns = int(frame.sensor_time_ns) - st.last_time_ns
+            if gap_ns > self.cfg.drop_gap_factor * self.period_ns:
+                if gap_ns > self.cfg.max_fill_s * 1e9:
+                    self.counters["gaps_not_filled"] += 1
+                    self._end_stream_bodies(st, out)
+                else:
+                    n_fill = max(1, int(round(gap_ns / self.period_ns)) - 1)
+                    step = gap_ns / (n_fill + 1)
+                    for k in range(1, n_fill + 1):
+                        t_ns = st.last_time_ns + int(round(k * step))
+                        self._advance(st, None, t_ns, out)
+        st.last_in_seq = int(frame.seq)
+        self._advance(st, frame, int(frame.sensor_time_ns), out)
+        st.last_time_ns = int(frame.sensor_time_ns)
+        if self.threaded:  # windows of other streams may have finished too
+            for other in self.streams.values():
+                if other is not st:
+                    self._drain(other, out)
+        return out
+
+    def flush(self, timeout: float | None = None) -> list[tuple[str, SkeletonFrame]]:
+        """Finalise every body of every stream and emit all pending clean frames.
+
+        Threaded mode waits up to ``timeout`` s (None = forever) for the queued windows;
+        windows still unsolved then are abandoned (their frames use the live value).
+        """
+        out: list[tuple[str, SkeletonFrame]] = []
+        for st in self.streams.values():
+            for body in list(st.bodies.values()):
+                self._begin_end(st, body)
+        if self.threaded:
+            deadline = None if timeout is None else time.monotonic() + timeout
+            with self._cond:
+                while self._inflight > 0:
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        break
+                    self._cond.wait(remaining if remaining is not None else 0.5)
+            for st in self.streams.values():
+                for body in st.ending:
+                    for job in body.jobs:
+                        if job.status == "pending":
+                            job.status = "abandoned"
+                            self.counters["windows_abandoned"] += 1
+        for st in self.streams.values():
+            self._drain(st, out)
+            if st.pending:  # cannot happen unless a body was lost: never hold frames back
+                raise RuntimeError(f"stream {st.stream_id!r}: {len(st.pending)} frames left after flush")
+        self.streams.clear()
+        return out
+
+    def poll(self) -> list[tuple[str, SkeletonFrame]]:
+        """Clean frames whose windows finished in the background since the last call
+        (threaded mode; always empty in synchronous mode). Never blocks."""
+        out: list[tuple[str, SkeletonFrame]] = []
+        if self.threaded:
+            for st in self.streams.values():
+                self._drain(st, out)
+        return out
+
+    def close(self) -> None:
+        """Stop the worker thread (threaded mode); pending windows are not waited for."""
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    def __enter__(self) -> "StreamEngine":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def metrics(self) -> dict:
+        """Counters, histograms and the degradation state (plain data)."""
+        m: dict[str, Any] = dict(self.counters)
+        m.update(
+            bodies_active=sum(len(s.bodies) for s in self.streams.values()),
+            streams=len(self.streams),
+            pending_clean_frames=sum(len(s.pending) for s in self.streams.values()),
+            pending_windows=self._inflight,
+            degraded=self.level > 0,
+            degrade_level=self.level,
+            hop=self.hop,
+            max_iterations=self._iterations(),
+            last_iterations=self._last_iterations,
+            window=self.cfg.window,
+            lookahead_frames=self.cfg.lookahead,
+            lookahead_s=self.cfg.latency_s,
+            threaded=self.threaded,
+            live_time=self.live_hist.snapshot(),
+            solve_time=self.solve_hist.snapshot(),
+        )
+        return m
+
+    # ------------------------------------------------------------------ validation
+    def _validate(self, frame: SkeletonFrame) -> None:
+        try:
+            self._check(frame)
+        except ValueError:
+            self.counters["frames_rejected"] += 1
+            raise
+
+    def _check(self, frame: SkeletonFrame) -> None:
+        if frame.skeleton != self.skeleton.name:
+            raise ValueError(
+                f"stream {frame.stream_id!r} seq {frame.seq}: skeleton {frame.skeleton!r}, "
+                f"this engine cleans {self.skeleton.name!r}"
+            )
+        J = self.n_joints
+        ids = set()
+        for b in frame.bodies:
+            pos = np.asarray(b.positions)
+            conf = np.asarray(b.confidence)
+            if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] != J:
+                raise ValueError(
+                    f"stream {frame.stream_id!r} seq {frame.seq} body {b.body_id}: expected {J} joints "
+                    f"({self.skeleton.name}) as ({J}, 3) positions, got shape {pos.shape}"
+                )
+            if conf.shape != (J,):
+                raise ValueError(
+                    f"stream {frame.stream_id!r} seq {frame.seq} body {b.body_id}: expected {J} "
+                    f"confidences ({self.skeleton.name}), got shape {conf.shape}"
+                )
+            if b.body_id in ids:
+                raise ValueError(f"stream {frame.stream_id!r} seq {frame.seq}: body {b.body_id} appears twice")
+            ids.add(b.body_id)
+
+    def _is_late(self, st: _Stream, frame: SkeletonFrame) -> bool:
+        if st.last_in_seq is not None and int(frame.seq) <= st.last_in_seq:
+            return True
+        return st.last_time_ns is not None and int(frame.sensor_time_ns) < st.last_time_ns
+
+    # ------------------------------------------------------------------ per frame
+    def _advance(self, st: _Stream, frame: SkeletonFrame | None, t_ns: int, out: list) -> None:
+        """Add one stream frame (``frame`` None = a synthesised dropped frame)."""
+        st.g += 1
+        g = st.g
+        seq = st.seq0 + g
+        if frame is None:
+            present_ids = [bid for bid in st.last_present if bid in st.bodies]
+            inputs: dict[int, BodyFrame] = {}
+            self.counters["frames_filled"] += 1
+        else:
+            inputs = {b.body_id: b for b in frame.bodies}
+            present_ids = [b.body_id for b in frame.bodies]
+            st.last_present = present_ids
+        pend = _Pending(seq, t_ns, frame is None, present_ids)
+        st.pending[g] = pend
+        if not present_ids:
+            pend.missing = 0
+        # new bodies
+        for bid in present_ids:
+            if bid not in st.bodies:
+                returning = bid in st.retired
+                prior = st.retired.pop(bid, None)
+                if returning:
+                    self.counters["bodies_reidentified"] += 1
+                body = _Body(bid, g, self.cfg, self.skeleton, self._backlog, prior)
+                body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live)
+                lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
+                body.live_path.set_bone_lengths(lengths)
+                st.bodies[bid] = body
+                self.counters["bodies_seen"] += 1
+        live_bodies: list[BodyFrame] = []
+        t_s = t_ns * 1e-9
+        for bid, body in list(st.bodies.items()):
+            n = body.count
+            k = n % body.cap
+            # the row is being reused: it must have been finalised long ago
+            body.mean[k] = 0.0
+            body.den[k] = 0.0
+            body.recw[k] = 0.0
+            if bid in present_ids:
+                t0 = time.perf_counter()
+                bf = inputs.get(bid)
+                if bf is not None:
+                    body.ring.push(np.asarray(bf.positions, dtype=np.float64), np.asarray(bf.confidence, dtype=np.float64), t_ns)
+                else:
+                    body.ring.push_missing(t_ns)
+                pos, conf, valid = body.ring.frame(n)
+                if body.absent > 3:
+                    body.live_path.reset()
+                y, rec = body.live_path.step(pos, valid, t_s)
+                body.live[k] = y
+                body.live_rec[k] = rec
+                body.conf[k] = conf
+                body.valid[k] = valid
+                body.present[k] = True
+                body.absent = 0
+                body.last_present = n
+                self._sample_bones(body, pos, conf)
+                live_bodies.append(
+                    BodyFrame(bid, y.copy(), conf.copy() if bf is not None else np.zeros(self.n_joints), rec.copy())
+                )
+                self.live_hist.observe(time.perf_counter() - t0)
+            else:
+                body.ring.push_missing(t_ns)
+                body.live[k] = np.nan
+                body.live_rec[k] = True
+                body.conf[k] = 0.0
+                body.valid[k] = False
+                body.present[k] = False
+                body.absent += 1
+            body.count += 1
+            if body.clean_bones_n == 0 and self._fixed_lengths is None and body.count % self.cfg.hop == 0:
+                body.live_path.set_bone_lengths(self._robust_lengths(body))  # until clean history exists
+            if body.count == body.next_end:
+                self._schedule(st, body, body.count)
+                body.next_end = body.count + self.hop
+        # live output in input body order
+        live_frame = SkeletonFrame(
+            st.stream_id, seq, t_ns, self.skeleton.name, live_bodies, filled=frame is None
+        )
+        out.append(("live", live_frame))
+        self.counters["live_out"] += 1
+        # timeouts
+        for body in list(st.bodies.values()):
+            if body.absent > self._timeout:
+                self.counters["bodies_timed_out"] += 1
+                self._begin_end(st, body)
+        self._drain(st, out)
+
+    def _sample_bones(self, body: _Body, pos: np.ndarray, conf: np.ndarray) -> None:
+        if not len(self.bones):
+            return
+        a, b = self.bones[:, 0], self.bones[:, 1]
+        lengths = np.linalg.norm(pos[b] - pos[a], axis=1)
+        ok = (conf[a] >= 0.99) & (conf[b] >= 0.99)
+        body.in_bones[body.in_bones_n % len(body.in_bones)] = np.where(ok, lengths, np.nan)
+        body.in_bones_n += 1
+
+    def _robust_lengths(self, body: _Body) -> np.ndarray | None:
+        """``(B,)`` median bone lengths (m) over the body's recent tracked input frames."""
+        if self._fixed_lengths is not None:
+            return self._fixed_lengths
+        if not len(self.bones) or body.in_bones_n == 0:
+            return body.prior_lengths
+        rows = body.in_bones[: min(body.in_bones_n, len(body.in_bones))]
+        ok = np.isfinite(rows)
+        if not ok.any(axis=0).all():
+            return body.prior_lengths
+        est = np.nanmedian(rows, axis=0)
+        return est
+
+    # ------------------------------------------------------------------ windows
+    def _iterations(self) -> int | None:
+        base = self.cfg.max_iterations
+        if self.level == 0:
+            return base
+        lvl1 = self.cfg.degraded_iterations or (max(1, base // 2) if base else 10)
+        if self.level >= 3:
+            return max(1, lvl1 // 2)
+        return lvl1
+
+    def _schedule(self, st: _Stream, body: _Body, end: int, final: bool = False) -> None:
+        """Create the job for the window ending at ``end`` and solve/submit it."""
+        W = self.cfg.window
+        win = body.ring.window(W, end)
+        if win.end - win.start < 1:
+            return
+        self.counters["windows_scheduled"] += 1
+        job = _Job(
+            body, win.start, win.end, win.positions.copy(), win.confidence.copy(),
+            self._robust_lengths(body), self._iterations(), final,
+        )
+        body.jobs.append(job)
+        body.last_scheduled_end = end
+        if not win.valid.any():
+            job.status = "skipped"
+            self.counters["windows_skipped"] += 1
+            return
+        if not self.threaded:
+            self._run_job(job)
+            return
+        self._degrade_check()
+        if self._inflight >= self.cfg.max_pending_windows and not final:
+            job.status = "skipped"
+            self.counters["windows_skipped"] += 1
+            return
+        with self._lock:
+            self._inflight += 1
+        self._queue.put(job)
+
+    def _degrade_check(self) -> None:
+        if not self.cfg.degrade:
+            return
+        hop_s = self.hop / self.cfg.rate_hz
+        overloaded = self._inflight >= 1 or self._last_solve_s > hop_s
+        if overloaded:
+            self._healthy = 0
+            progressed = self._done_total > self._done_at_change or self._inflight > self._pending_at_change
+            if self.level < 3 and (progressed or self.level == 0):
+                self._set_level(self.level + 1)
+        elif self._last_solve_s < 0.5 * hop_s:
+            self._healthy += 1
+            if self.level > 0 and self._healthy >= self.cfg.recover_after:
+                self._set_level(self.level - 1)
+                self._healthy = 0
+
+    def _set_level(self, level: int) -> None:
+        if level > self.level:
+            self.counters["degrade_events"] += 1
+        self.level = level
+        self._done_at_change = self._done_total
+        self._pending_at_change = self._inflight
+        limit = self.cfg.hop_limit
+        if level >= 3:
+            self.hop = limit
+        elif level == 2:
+            self.hop = min(2 * self.cfg.hop, limit)
+        else:
+            self.hop = self.cfg.hop
+
+    def _run_job(self, job: _Job) -> None:
+        """Solve one window (worker thread in threaded mode); sets the job's result."""
+        body = job.body
+        T = job.end - job.start
+        state = None
+        st_ = body.solver_state
+        if st_ is not None and T == self.cfg.window:
+            shift = job.end - body.solver_state_end
+            n_prev = getattr(st_, "n_frames", None)
+            if n_prev is None and hasattr(st_, "A"):
+                n_prev = st_.A.shape[0]
+            if 0 <= shift < T and n_prev == T:
+                try:
+                    state = st_.shifted(shift) if hasattr(st_, "shifted") else st_
+                except Exception:  # a state that cannot shift: solve cold
+                    state = None
+        config = _with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
+        kwargs: dict[str, Any] = {"state": state}
+        if config is not None:
+            kwargs["config"] = config
+        t0 = time.perf_counter()
+        try:
+            res = self.solver(job.positions, job.confidence, self.bones, job.bone_lengths, self.cfg.rate_hz, **kwargs)
+            pos = np.asarray(res.positions, dtype=np.float64)
+            if pos.shape != job.positions.shape:
+                raise ValueError(f"window solver returned {pos.shape}, expected {job.positions.shape}")
+            rec = getattr(res, "recovered", None)
+            rec = np.zeros(pos.shape[:2], dtype=bool) if rec is None else np.asarray(rec, dtype=bool)
+            job.result_pos, job.result_rec = pos, rec
+            job.n_iter = int(getattr(res, "iterations", 0) or 0)
+            job.converged = bool(getattr(res, "converged", True))
+            new_state = getattr(res, "state", None)
+            body.solver_state = new_state
+            body.solver_state_end = job.end if new_state is not None else -1
+        except Exception as exc:  # a failing window must not lose the frames
+            job.error = f"{type(exc).__name__}: {exc}"
+            body.solver_state = None
+            body.solver_state_end = -1
+        job.solve_s = time.perf_counter() - t0
+        if job.status == "pending":
+            job.status = "done"
+
+    def _worker(self) -> None:
+        while True:
+            job = self._queue.get()
+            if job is None:
+                return
+            if job.status == "pending":
+                self._run_job(job)
+            with self._cond:
+                self._inflight -= 1
+                self._done_total += 1
+                self._cond.notify_all()
+
+    # ------------------------------------------------------------------ results
+    def _drain(self, st: _Stream, out: list) -> None:
+        """Blend finished windows, finalise frames, retire finished bodies, emit clean frames."""
+        limit = self.cfg.lookahead + 1 + self._backlog
+        for body in list(st.bodies.values()) + list(st.ending):
+            if self.threaded:
+                # a frame waiting too long beyond its lookahead: abandon the stalled window
+                while body.jobs and body.jobs[0].status == "pending" and body.count - body.final_upto > limit:
+                    body.jobs[0].status = "abandoned"
+                    self.counters["windows_abandoned"] += 1
+                    self._process_jobs(st, body)
+            self._process_jobs(st, body)
+            self._finalise(st, body)
+            if body.ending and not body.jobs and body.final_upto >= body.count:
+                self._retire(st, body)
+        self._emit(st, out)
+
+    def _process_jobs(self, st: _Stream, body: _Body) -> None:
+        """Blend finished windows at the head of the body's queue (in order)."""
+        while body.jobs and body.jobs[0].status != "pending":
+            job = body.jobs.popleft()
+            body.last_processed_end = max(body.last_processed_end, job.end)
+            if job.status == "done":
+                self._last_solve_s = job.solve_s
+                self.solve_hist.observe(job.solve_s)
+                if job.error is not None:
+                    self.counters["solver_errors"] += 1
+                    continue
+                self.counters["windows_solved"] += 1
+                self.counters["solver_iterations"] += job.n_iter
+                self._last_iterations = job.n_iter
+                if not job.converged:
+                    self.counters["solver_not_converged"] += 1
+                self._blend(body, job)
+
+    def _blend(self, body: _Body, job: _Job) -> None:
+        """Overlap-add: fold the window's solution into its frames not yet emitted."""
+        lo = max(job.start, body.final_upto)
+        if lo >= job.end:
+            return
+        T = job.end - job.start
+        w = hann_weights(T)[lo - job.start:]
+        x = job.result_pos[lo - job.start:]
+        r = job.result_rec[lo - job.start:].astype(np.float64)
+        rows = np.arange(lo, job.end) % body.cap
+        finite = np.isfinite(x).all(axis=2)
+        wj = np.where(finite, w[:, None], 0.0)  # (n, J)
+        den = body.den[rows] + wj
+        frac = np.divide(wj, den, out=np.zeros_like(wj), where=den > 0)
+        mean = body.mean[rows]
+        body.mean[rows] = mean + frac[..., None] * (np.where(finite[..., None], x, mean) - mean)
+        body.recw[rows] = body.recw[rows] + wj * r
+        body.den[rows] = den
+
+    def _finalise(self, st: _Stream, body: _Body) -> None:
+        """Move the body's frames whose clean value can no longer change to the stream."""
+        L = self.cfg.lookahead
+        while body.final_upto < body.count:
+            n = body.final_upto
+            head = body.jobs[0] if body.jobs else None
+            if body.ending:
+                if head is not None:
+                    break
+            else:
+                if body.count < n + L + 1:
+                    break
+                if head is not None and head.end <= n + L + 1:
+                    break
+                if body.last_processed_end <= n:
+                    break  # degraded hop: wait for the window that covers n
+            k = n % body.cap
+            if body.present[k]:
+                den = body.den[k]
+                have = den > 0
+                pos = np.where(have[:, None], body.mean[k], body.live[k])
+                recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
+                rec = ~body.valid[k] | ~have | (recw > 0.5)
+                rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])
+                g = body.g0 + n
+                pend = st.pending.get(g)
+                if pend is not None:
+                    conf = body.conf[k].copy()
+                    pend.slots[body.body_id] = BodyFrame(body.body_id, pos, conf, rec)
+                    pend.missing -= 1
+                    self.counters["joints_recovered"] += int(rec.sum())
+                    self._sample_clean_bones(body, pos)
+            body.final_upto += 1
+
+    def _sample_clean_bones(self, body: _Body, pos: np.ndarray) -> None:
+        if not len(self.bones) or self._fixed_lengths is not None:
+            return
+        lengths = np.linalg.norm(pos[self.bones[:, 1]] - pos[self.bones[:, 0]], axis=1)
+        body.clean_bones[body.clean_bones_n % len(body.clean_bones)] = lengths
+        body.clean_bones_n += 1
+        if body.clean_bones_n % self.cfg.hop == 0:
+            rows = body.clean_bones[: min(body.clean_bones_n, len(body.clean_bones))]
+            with np.errstate(all="ignore"):
+                est = np.nanmedian(rows, axis=0) if np.isfinite(rows).any() else None
+            body.live_path.set_bone_lengths(est)
+
+    def _emit(self, st: _Stream, out: list) -> None:
+        while True:
+            pend = st.pending.get(st.emit_g)
+            if pend is None or pend.missing > 0:
+                return
+            del st.pending[st.emit_g]
+            st.emit_g += 1
+            bodies = [pend.slots[bid] for bid in pend.order if bid in pend.slots]
+            out.append(
+                ("clean", SkeletonFrame(st.stream_id, pend.seq, pend.time_ns, self.skeleton.name, bodies, filled=pend.filled))
+            )
+            self.counters["clean_out"] += 1
+
+    # ------------------------------------------------------------------ lifecycle
+    def _begin_end(self, st: _Stream, body: _Body) -> None:
+        """Body leaves (timeout, flush, discontinuity): solve a last window up to its newest
+        present frame; the body stops taking frames (a returning id starts a new body)."""
+        if body.ending:
+            return
+        body.ending = True
+        if st.bodies.get(body.body_id) is body:
+            del st.bodies[body.body_id]
+        st.ending.append(body)
+        end = body.last_present + 1
+        if end > body.last_scheduled_end and end > body.final_upto:
+            self._schedule(st, body, end, final=True)
+
+    def _retire(self, st: _Stream, body: _Body) -> None:
+        if body in st.ending:
+            st.ending.remove(body)
+        st.retired[body.body_id] = self._robust_lengths(body)
+        while len(st.retired) > 64:
+            st.retired.pop(next(iter(st.retired)))
+
+    def _end_stream_bodies(self, st: _Stream, out: list) -> None:
+        """A discontinuity: every body leaves; its frames are emitted when its last window is done."""
+        for body in list(st.bodies.values()):
+            self._begin_end(st, body)
+        self._drain(st, out)
+
+
+class ThreadedStreamEngine(StreamEngine):
+    """:class:`StreamEngine` whose windows are solved in a worker thread (live service mode)."""
+
+    def __init__(self, skeleton: Skeleton, config: EngineConfig | None = None, window_solver: WindowSolver | None = None) -> None:
+        super().__init__(skeleton, config, window_solver, threaded=True)
