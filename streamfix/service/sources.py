@@ -280,16 +280,17 @@ def _stream_id_from_path(path: str) -> str:
 def default_replay_file(project_root: Path | None = None) -> Path:
     """The bundled demo recording: the first ``.csv`` in ``replay_data/`` (sorted by name).
 
-    Looks in the project checkout next to the package (``replay_data/``) and in the
-    current directory; raises FileNotFoundError saying where it looked.
+    Looks in ``$STREAMFIX_REPLAY_DATA`` if set, else in ``replay_data/`` of the project
+    checkout next to the package and of the current directory; raises
+    FileNotFoundError saying where it looked.
     """
-    roots = []
-    if project_root is not None:
-        roots.append(Path(project_root))
     env = os.environ.get("STREAMFIX_REPLAY_DATA")
-    candidates = [Path(env)] if env else []
-    roots.extend([Path(__file__).resolve().parents[2], Path.cwd()])
-    candidates.extend(r / "replay_data" for r in roots)
+    if env:  # an explicit directory wins outright
+        candidates = [Path(env)]
+    else:
+        roots = [Path(project_root)] if project_root is not None else []
+        roots.extend([Path(__file__).resolve().parents[2], Path.cwd()])
+        candidates = [r / "replay_data" for r in roots]
     for d in candidates:
         if d.is_dir():
             csvs = sorted(p for p in d.iterdir() if p.suffix.lower() == ".csv" and p.is_file())

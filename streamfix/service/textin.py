@@ -101,7 +101,9 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame:
     try:
         obj = json.loads(line)
     except json.JSONDecodeError as exc:
-        reason = "truncated" if exc.pos >= len(line.rstrip()) else "garbage"
+        text = line.rstrip()
+        # cut short: no closing brace and the parser ran into the end (a number may be half there)
+        reason = "truncated" if not text.endswith("}") and exc.pos >= len(text) - 16 else "garbage"
         raise BadInput(reason, f"JSON line does not parse: {exc.msg} at column {exc.colno}") from None
     if not isinstance(obj, dict):
         raise BadInput("garbage", f"JSON line is a {type(obj).__name__}, expected an object")
