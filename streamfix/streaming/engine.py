@@ -116,12 +116,18 @@ signature of :func:`streamfix.core.pipeline.clean_window`."""
 
 
 # --------------------------------------------------------------------------- config
+DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
+DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean latency)
+DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
+
+
 @dataclass(frozen=True)
 class EngineConfig:
     """Streaming engine settings (frames, seconds, Hz).
 
     window W, hop H, lookahead L: frames, ``1 <= H <= L + 1 <= W``; the clean output's
-    latency is ``L / rate_hz`` s plus compute. rate_hz: nominal sensor rate (drop
+    latency is ``L / rate_hz`` s plus compute. Left None, they follow the defaults in
+    seconds (W 2 s, H 1/3 s, L 0.5 s) at ``rate_hz``: 60/10/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
     detection, filters). live: the live path's settings. max_iterations: solver
     iteration cap per window (None = the solver's default). solver_config: passed as
     ``config=`` to the window solver (None = its default). bone_lengths: fixed
@@ -136,11 +142,14 @@ class EngineConfig:
     many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
     threaded: solve windows in a worker thread (the service's mode). lookahead_s: the
     lookahead in seconds instead of frames (rounded at ``rate_hz``; wins if given).
+    live_anchor: re-anchor the live path's outlier gate on each solved window's newest
+    frames when the solution is current (the live output is "corrected by the last
+    solved window"; it stays causal).
     """
 
-    window: int = 60
-    hop: int = 5
-    lookahead: int = 15
+    window: int | None = None
+    hop: int | None = None
+    lookahead: int | None = None
     rate_hz: float = 30.0
     live: LiveConfig = field(default_factory=LiveConfig)
     max_iterations: int | None = None
@@ -158,13 +167,25 @@ class EngineConfig:
     max_fill_s: float = 1.0
     threaded: bool = False
     lookahead_s: float | None = None
+    live_anchor: bool = False
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"rate_hz must be a positive number, got {self.rate_hz}")
         if self.lookahead_s is not None:  # seconds win over frames
             if not self.lookahead_s >= 0:
                 raise ValueError(f"lookahead_s must be >= 0 s, got {self.lookahead_s}")
             object.__setattr__(self, "lookahead", int(round(self.lookahead_s * self.rate_hz)))
             object.__setattr__(self, "lookahead_s", None)
+        # frame counts left unset follow the defaults in seconds at this rate
+        for name, seconds in (("window", DEFAULT_WINDOW_S), ("lookahead", DEFAULT_LOOKAHEAD_S), ("hop", DEFAULT_HOP_S)):
+            if getattr(self, name) is None:
+                n = max(1, int(round(seconds * self.rate_hz)))
+                if name == "lookahead":
+                    n = min(n, self.window - 1)
+                if name == "hop":
+                    n = min(n, self.lookahead + 1)
+                object.__setattr__(self, name, n)
         W, H, L = self.window, self.hop, self.lookahead
         if W < 4:
             raise ValueError(f"window must be >= 4 frames (typically 50-300), got {W}")
@@ -172,8 +193,6 @@ class EngineConfig:
             raise ValueError(f"lookahead must be in 0..window-1 = 0..{W - 1} frames, got {L}")
         if not 1 <= H <= L + 1:
             raise ValueError(f"hop must be in 1..lookahead+1 = 1..{L + 1} frames, got {H}")
-        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError(f"rate_hz must be a positive number, got {self.rate_hz}")
         if self.max_hop is not None and not H <= self.max_hop <= W:
             raise ValueError(f"max_hop must be in hop..window = {H}..{W}, got {self.max_hop}")
         if self.max_iterations is not None and self.max_iterations < 1:
@@ -888,6 +907,8 @@ class StreamEngine:
                 if not job.converged:
                     self.counters["solver_not_converged"] += 1
                 self._blend(body, job)
+                if self.cfg.live_anchor and job.end == body.count and job.result_pos is not None:
+                    body.live_path.anchor(job.result_pos[-3:])
 
     def _blend(self, body: _Body, job: _Job) -> None:
         """Overlap-add: fold the window's solution into its frames not yet emitted."""

@@ -43,13 +43,14 @@ class LiveConfig:
     """
 
     filter: str = "one_euro"
-    min_cutoff: float = 1.5
-    beta: float = 0.7
+    min_cutoff: float = 3.0
+    beta: float = 10.0
     d_cutoff: float = 1.0
-    gate_min_m: float = 0.05
+    gate_min_m: float = 0.03
     gate_k: float = 4.0
     reacquire: int = 3
     project: bool = True
+    propagate: bool = False
 
     def __post_init__(self) -> None:
         if self.filter not in ("one_euro", "holt", "none"):
@@ -95,9 +96,14 @@ def tree_levels(bones: np.ndarray, n_joints: int) -> list[np.ndarray]:
 
 
 def project_bone_lengths(
-    positions: np.ndarray, levels: list[np.ndarray], lengths_by_child: np.ndarray
+    positions: np.ndarray, levels: list[np.ndarray], lengths_by_child: np.ndarray, propagate: bool = True
 ) -> np.ndarray:
     """Place each child at ``parent' + l * unit(child - parent)`` level by level (m).
+
+    ``propagate`` True: ``parent'`` is the parent's projected position (forward
+    kinematics: bone lengths exact, a parent's correction moves its subtree); False:
+    the parent's unprojected position (each joint moves only along its own bone, so
+    an error in one joint never spreads to its descendants).
 
     ``positions`` ``(J, 3)``; ``lengths_by_child`` ``(J,)`` target length of the bone
     ending at each joint (NaN = leave that bone's length alone, only follow the
@@ -111,7 +117,7 @@ def project_bone_lengths(
         target = lengths_by_child[c]
         ok = np.isfinite(target) & (norm > 1e-9) & np.isfinite(norm)
         scale = np.where(ok, target / np.where(ok, norm, 1.0), 1.0)[:, None]
-        new = out[p] + vec * scale
+        new = (out[p] if propagate else positions[p]) + vec * scale
         good = np.isfinite(new).all(axis=1)
         out[c[good]] = new[good]
     return out
@@ -201,12 +207,40 @@ class LivePath:
             child_len[self.bones[:, 1]] = lengths
         self._child_len = child_len
 
-    def predict(self) -> np.ndarray:
-        """Constant-velocity prediction ``r_t`` (m) from the gated history, ``(J, 3)``."""
-        g1, g2, g3 = self._g
-        vel = np.where(np.isfinite(g3), (g1 - g3) * 0.5, np.where(np.isfinite(g2), g1 - g2, 0.0))
+    def anchor(self, recent: np.ndarray) -> None:
+        """Re-anchor the gate's history on a solved window's newest frames.
+
+        ``recent`` ``(k, J, 3)`` m, oldest first, ending at the frame just pushed. The
+        gate's reference then follows the robust window solution instead of its own
+        (possibly wrongly gated) history; finite values only.
+        """
+        k = min(len(recent), 3)
+        for i in range(k):
+            row = recent[-1 - i]
+            ok = np.isfinite(row)
+            self._g[i][ok] = row[ok]
+
+    def predict(self, x: np.ndarray | None = None, valid: np.ndarray | None = None) -> np.ndarray:
+        """Prediction ``r_t`` (m) of every joint from the gated history, ``(J, 3)``.
+
+        ``r_t = g_{t-1} + d_t + (v_j - c)``: ``v_j`` the joint's last gated velocity, ``c``
+        its median over joints (the body's common motion), and ``d_t`` the common motion
+        of the current frame, the median over joints of ``x_t - g_{t-1}`` (robust to a
+        minority of corrupted joints). Without the current frame, ``d_t = c``.
+        """
+        g1, g2, _ = self._g
+        vel = np.where(np.isfinite(g2), g1 - g2, 0.0)
         vel = np.where(np.isfinite(vel), vel, 0.0)
-        return g1 + vel
+        ok = np.isfinite(g1).all(axis=1)
+        if not ok.any():
+            return g1.copy()
+        common = np.median(vel[ok], axis=0)
+        d = common
+        if x is not None:
+            cur = ok & valid
+            if cur.sum() >= 3:
+                d = np.median(x[cur] - g1[cur], axis=0)
+        return g1 + d + (vel - common)
 
     def step(self, x: np.ndarray, valid: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """One frame: raw ``(J, 3)`` m (NaN missing), ``valid (J,)``, time ``t`` s.
@@ -216,7 +250,7 @@ class LivePath:
         """
         cfg = self.cfg
         valid3 = np.broadcast_to(valid[:, None], x.shape)
-        r = self.predict()
+        r = self.predict(x, valid)
         have_ref = np.isfinite(r)
         innov = np.abs(x - r)
         scale = np.where(np.isfinite(self._scale), self._scale, cfg.gate_min_m)
@@ -257,7 +291,7 @@ class LivePath:
             y = g.copy()
         y = np.where(np.isfinite(y), y, self._last)
         if cfg.project and self.levels:
-            y = project_bone_lengths(y, self.levels, self._child_len)
+            y = project_bone_lengths(y, self.levels, self._child_len, cfg.propagate)
         self._last = y
         recovered = ~valid | outlier.any(axis=1)
         return y, recovered
