@@ -1,0 +1,152 @@
+"""``streamfix tap ENDPOINT``: subscribe to a streamfix PUB and print decoded messages.
+
+The Python reference subscriber's command-line face. Connects a SUB socket to
+ENDPOINT (a service's ``--out``), subscribes to ``--topic`` prefixes (``raw``,
+``live``, ``clean``, ``meta``, ``live/kinect0`` or any raw prefix such as ``sf/``) and
+prints one line per message; ``--json`` prints one JSON object per line::
+
+    {"topic": "sf/live/kinect0", "kind": "live", "stream": "kinect0", "type": "frame",
+     "seq": 12, "t_sensor_ns": ..., "t_publish_ns": ..., "latency_ms": 0.4,
+     "skeleton": "kinect_v2", "filled": false,
+     "bodies": [{"id": 1, "joints": [[x, y, z] | null, ...], "confidence": [...],
+                 "recovered": [false, ...] | null}]}
+
+Skeleton messages (``type: "skeleton"``) are printed when ``meta`` is subscribed.
+Malformed messages are counted by reason, skipped, and reported on stderr (one line
+each, and a summary at exit). ``--count N`` stops after N printed messages,
+``--timeout S`` after S seconds. Exit status 0, or 2 when ``--count`` was not reached
+before the timeout (or the endpoint is unusable).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+HELP = "subscribe to a streamfix endpoint and print decoded messages (--json: one object per line)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("endpoint", help="endpoint of a streamfix PUB to connect to, e.g. tcp://127.0.0.1:5556")
+    p.add_argument("--topic", action="append", default=None, metavar="PREFIX",
+                   help="raw, live, clean, meta, KIND/STREAM, or a raw topic prefix; repeatable (default: live and clean)")
+    p.add_argument("--count", type=int, default=None, help="stop after N messages")
+    p.add_argument("--timeout", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.add_argument("--bind", action="store_true",
+                   help="bind a PULL socket instead of connecting a SUB (receive what a replay sends)")
+
+
+def _num(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def frame_to_json(received) -> dict:
+    """The JSON form of one received frame or skeleton message (see module doc)."""
+    from ..transport.wire import SkeletonMessage
+
+    msg = received.message
+    out = {"topic": received.topic.decode("ascii", "replace"), "kind": received.kind, "stream": received.stream}
+    if isinstance(msg, SkeletonMessage):
+        out.update({
+            "type": "skeleton",
+            "skeleton": msg.skeleton.name,
+            "joint_names": list(msg.skeleton.joint_names),
+            "bones": [list(b) for b in msg.skeleton.bones],
+            "rate_hz": msg.rate_hz,
+            "units": msg.units,
+            "t_publish_ns": msg.publish_time_ns,
+        })
+        return out
+    latency = (received.recv_time_ns - msg.publish_time_ns) / 1e6 if msg.publish_time_ns else None
+    bodies = []
+    for b in msg.bodies:
+        joints = [None if not all(math.isfinite(c) for c in row) else [float(c) for c in row]
+                  for row in b.positions.tolist()]
+        bodies.append({
+            "id": b.body_id,
+            "joints": joints,
+            "confidence": [float(c) for c in b.confidence.tolist()],
+            "recovered": None if b.recovered is None else [bool(r) for r in b.recovered.tolist()],
+        })
+    out.update({
+        "type": "frame",
+        "seq": msg.seq,
+        "t_sensor_ns": msg.sensor_time_ns,
+        "t_publish_ns": msg.publish_time_ns,
+        "latency_ms": None if latency is None else round(latency, 3),
+        "skeleton": msg.skeleton,
+        "filled": msg.filled,
+        "bodies": bodies,
+    })
+    return out
+
+
+def frame_to_line(received) -> str:
+    from ..transport.wire import SkeletonMessage
+
+    msg = received.message
+    topic = received.topic.decode("ascii", "replace")
+    if isinstance(msg, SkeletonMessage):
+        return (f"{topic} skeleton={msg.skeleton.name} joints={msg.skeleton.n_joints} "
+                f"bones={msg.skeleton.n_bones} rate_hz={msg.rate_hz:g}")
+    parts = [f"{topic} seq={msg.seq} t_sensor_ns={msg.sensor_time_ns} bodies={len(msg.bodies)}"]
+    for b in msg.bodies:
+        missing = int((b.confidence <= 0).sum())
+        rec = 0 if b.recovered is None else int(b.recovered.sum())
+        parts.append(f"{b.body_id}:{len(b.confidence) - missing}obs/{rec}rec")
+    if msg.filled:
+        parts.append("filled")
+    if msg.publish_time_ns:
+        parts.append(f"latency_ms={(received.recv_time_ns - msg.publish_time_ns) / 1e6:.2f}")
+    return " ".join(parts)
+
+
+def run(args: argparse.Namespace) -> int:
+    import zmq
+
+    from ..transport.wire import resolve_topic_arg
+    from ..transport.zmq_io import Subscriber
+
+    topics = [resolve_topic_arg(t) for t in (args.topic or ["live", "clean"])]
+    if args.count is not None and args.count < 1:
+        print("streamfix tap: --count must be >= 1", file=sys.stderr)
+        return 2
+
+    def on_error(topic: bytes, error) -> None:
+        print(f"streamfix tap: skipped message on {topic.decode('ascii', 'replace')!r} ({error.reason}): {error}",
+              file=sys.stderr, flush=True)
+
+    try:
+        sub = Subscriber(args.endpoint, topics, bind=args.bind,
+                         socket_type=zmq.PULL if args.bind else zmq.SUB, on_error=on_error)
+    except zmq.ZMQError as exc:
+        print(f"streamfix tap: cannot {'bind' if args.bind else 'connect to'} {args.endpoint!r}: {exc}", file=sys.stderr)
+        return 2
+    printed = 0
+    try:
+        for received in sub.receive(count=args.count, timeout_s=args.timeout):
+            if args.json:
+                line = json.dumps(frame_to_json(received), allow_nan=False, separators=(",", ":"))
+            else:
+                line = frame_to_line(received)
+            try:
+                print(line, flush=True)
+            except BrokenPipeError:  # `streamfix tap ... | head`
+                return 0
+            printed += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sub.close()
+    c = sub.counters
+    bad = {k: v for k, v in c.items() if k not in ("received", "frames", "skeletons", "malformed", "ignored_type")}
+    print(
+        f"streamfix tap: {printed} printed, {c['frames']} frames, {c['skeletons']} skeleton messages, "
+        f"{c['malformed']} malformed{' ' + json.dumps(bad) if bad else ''}, {c['ignored_type']} unknown type",
+        file=sys.stderr,
+    )
+    if args.count is not None and printed < args.count:
+        return 2
+    return 0
