@@ -138,3 +138,12 @@ def test_writer_rejects_other_skeletons(tmp_path):
     m = Motion.from_positions(np.zeros((3, 32, 3)), AZURE_KINECT, 30.0)
     with pytest.raises(ValueError, match="25-joint kinect_v2"):
         write_kinect_csv(m, tmp_path / "x.csv")
+
+
+def test_fixed_decimals(shared_data, tmp_path):
+    m = read_kinect_csv(shared_data / "kinect_v2" / "Ges02_balancinghands.csv")
+    write_kinect_csv(m, tmp_path / "d.csv", decimals=4)
+    r = read_kinect_csv(tmp_path / "d.csv")
+    np.testing.assert_allclose(r.positions, m.positions, atol=0.5e-4 + 1e-12, equal_nan=True)
+    np.testing.assert_array_equal(r.confidence, m.confidence)
+    assert (tmp_path / "d.csv").stat().st_size < (shared_data / "kinect_v2" / "Ges02_balancinghands.csv").stat().st_size

@@ -160,11 +160,13 @@ def _state_from_confidence(motion: Motion) -> np.ndarray:
     return np.where(observed, state, 0)
 
 
-def write_kinect_csv(motion: Motion, path: str | Path) -> None:
+def write_kinect_csv(motion: Motion, path: str | Path, *, decimals: int | None = None) -> None:
     """Write a ``KINECT_V2`` motion in the layout :func:`read_kinect_csv` reads.
 
     Confidence > 0.75 is written as tracked (2), other observed samples as inferred
     (1), missing samples as ``0,0,0,0``. Timestamps are written as 100 ns ticks.
+    Coordinates are written with 9 significant digits, or with ``decimals`` fixed
+    decimals (4 = 0.1 mm, far below sensor noise, for compact files).
     """
     if motion.skeleton.joint_names != KINECT_V2.joint_names:
         raise ValueError(
@@ -179,6 +181,7 @@ def write_kinect_csv(motion: Motion, path: str | Path) -> None:
     pos = np.where(state[:, :, None] > 0, motion.positions, 0.0)
     T = motion.n_frames
     block = np.concatenate([pos, state[:, :, None].astype(np.float64)], axis=2).reshape(T, 4 * N_JOINTS)
-    fmt = ",".join(["%.9g", "%.9g", "%.9g", "%d"] * N_JOINTS)
+    c = "%.9g" if decimals is None else f"%.{int(decimals)}f"
+    fmt = ",".join([c, c, c, "%d"] * N_JOINTS)
     lines = [f"{int(t)}," + (fmt % tuple(row)) + ",\n" for t, row in zip(ticks, block)]
     Path(path).write_text("".join(lines))
