@@ -21,7 +21,7 @@ from streamfix.skeletons import KINECT_V2
 
 from test_e2e_harness import connect_and_wait, connected_subscriber, serve
 
-ENGINE_ARGS = ("--engine", "passthrough")
+ENGINE_ARGS = ("--engine", "streamfix")
 STREAM = "bad-input"
 
 

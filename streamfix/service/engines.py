@@ -8,7 +8,7 @@
     baseline of ``benchmarks/bench_service.py`` (socket + encoding cost alone) and a
     way to run the service's plumbing without the solver.
 
-An engine offers ``push(frame) -> [(kind, frame)]``, ``flush() -> [(kind, frame)]``,
+An engine offers ``push(frame) -> [(kind, frame)]``, ``flush(timeout) -> [(kind, frame)]``,
 optionally ``poll() -> [(kind, frame)]`` (outputs finished in the background) and
 ``metrics() -> dict``; ``kind`` is ``"live"`` or ``"clean"``.
 """
@@ -55,7 +55,7 @@ class PassthroughEngine:
     def poll(self) -> list[tuple[str, SkeletonFrame]]:
         return []
 
-    def flush(self) -> list[tuple[str, SkeletonFrame]]:
+    def flush(self, timeout: float | None = None) -> list[tuple[str, SkeletonFrame]]:
         return []
 
     def metrics(self) -> dict:

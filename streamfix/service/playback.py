@@ -25,17 +25,9 @@ __all__ = ["motion_frames", "Pacer", "load_recording"]
 
 
 def load_recording(path: str) -> Motion:
-    """Read any recording the file layer understands (Kinect CSV, BVH, C3D, .sfrec)."""
-    try:
-        from ..io import read_motion
-    except ImportError:  # before the io dispatcher exists, read the formats directly
-        suffix = str(path).lower().rsplit(".", 1)[-1]
-        if suffix == "csv":
-            from ..io.kinect_csv import read_kinect_csv as read_motion
-        elif suffix == "bvh":
-            from ..io.bvh import read_bvh as read_motion
-        else:
-            raise RuntimeError(f"cannot read {path}: no reader for .{suffix} files yet") from None
+    """Read any recording ``streamfix.io.read_motion`` understands (Kinect CSV, BVH, C3D, .sfrec)."""
+    from ..io import read_motion
+
     return read_motion(path)
 
 

@@ -32,7 +32,7 @@ import signal
 import sys
 import threading
 import time
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -69,6 +69,9 @@ class ServiceMetrics:
         self.nonfinite = r.counter(
             "streamfix_nonfinite_joints_total", "Input joints with NaN/inf coordinates (treated as missing)."
         )
+        self.late = r.counter(
+            "streamfix_frames_late_total", "Input frames skipped by the engine as duplicate or out of order."
+        )
         self.filled = r.counter(
             "streamfix_filled_frames_total", "Frames synthesised for sensor frames that never arrived."
         )
@@ -96,10 +99,45 @@ class _Stream:
     skeleton: Skeleton
     rate_hz: float
     engine: object
-    arrivals: "OrderedDict[int, int]" = field(default_factory=OrderedDict)  # seq -> arrival ns
+    lookahead: int = 0  # frames the clean output waits for
+    # real input frames by sensor time (the engine keeps sensor times; seq may be renumbered)
+    arrivals: "OrderedDict[int, tuple[int, int]]" = field(default_factory=OrderedDict)  # t -> (arrival, index)
+    by_index: deque = field(default_factory=deque)  # arrival ns of input frame base_index + k
+    base_index: int = 0
     last_arrival_ns: int = 0
     bodies: int = 0
     frames: int = 0
+    late_seen: int = 0
+
+    def note_arrival(self, time_ns: int, arrival_ns: int) -> None:
+        index = self.base_index + len(self.by_index)
+        self.arrivals[time_ns] = (arrival_ns, index)
+        self.by_index.append(arrival_ns)
+        self.last_arrival_ns = arrival_ns
+        while len(self.arrivals) > _MAX_PENDING:
+            self.arrivals.popitem(last=False)
+        while len(self.by_index) > _MAX_PENDING + self.lookahead:
+            self.by_index.popleft()
+            self.base_index += 1
+
+    def arrival_of(self, time_ns: int) -> int | None:
+        got = self.arrivals.get(time_ns)
+        return None if got is None else got[0]
+
+    def clean_out(self, time_ns: int) -> tuple[int | None, int | None]:
+        """Arrival of this frame and of the frame ``lookahead`` later (None if unknown)."""
+        got = self.arrivals.pop(time_ns, None)
+        if got is None:
+            return None, None
+        arrival, index = got
+        k = index + self.lookahead - self.base_index
+        trigger = self.by_index[k] if 0 <= k < len(self.by_index) else None
+        # input frames before the oldest pending one are no longer needed as triggers
+        oldest = next(iter(self.arrivals.values()), (0, index + 1))[1]
+        while self.by_index and self.base_index < min(oldest, index + 1):
+            self.by_index.popleft()
+            self.base_index += 1
+        return arrival, trigger
 
 
 class Service:
@@ -118,11 +156,13 @@ class Service:
         status_interval_s: float = 5.0,
         status_stream=None,
         max_log_per_s: int = 20,
+        flush_timeout_s: float = 10.0,
     ) -> None:
         self.source = source
         self.publisher = publisher
         self.make_engine = make_engine
         self.default_rate_hz = float(default_rate_hz)
+        self.flush_timeout_s = float(flush_timeout_s)
         self.m = metrics or ServiceMetrics()
         self.metrics_server: MetricsServer | None = None
         if metrics_port is not None:
@@ -182,11 +222,16 @@ class Service:
                 "stream %r switched skeleton %s -> %s: flushing and restarting its engine",
                 frame.stream_id, st.skeleton.name, frame.skeleton,
             )
-            self._publish_outputs(st, st.engine.flush())
+            self._publish_outputs(st, self._engine_flush(st))
         skeleton = self._skeletons.get(frame.skeleton) or get_skeleton(frame.skeleton)
         ann = self._announced.get(frame.stream_id)
         rate = rate_hint or (ann[1] if ann and ann[0].name == skeleton.name else None) or self.default_rate_hz
-        st = _Stream(frame.stream_id, skeleton, float(rate), self.make_engine(skeleton, float(rate)))
+        engine = self.make_engine(skeleton, float(rate))
+        st = _Stream(frame.stream_id, skeleton, float(rate), engine)
+        try:
+            st.lookahead = int(engine.metrics().get("lookahead_frames", 0))
+        except Exception:
+            st.lookahead = 0
         self.streams[frame.stream_id] = st
         self.m.streams.set(len(self.streams))
         self.publisher.announce(frame.stream_id, skeleton, float(rate))
@@ -207,45 +252,44 @@ class Service:
         if nonfinite:
             self.m.nonfinite.inc(nonfinite)
         st = self._stream_for(frame, item.rate_hz)
-        st.frames += 1
-        st.bodies = len(frame.bodies)
-        st.last_arrival_ns = item.arrival_ns
-        st.arrivals[frame.seq] = item.arrival_ns
-        while len(st.arrivals) > _MAX_PENDING:
-            st.arrivals.popitem(last=False)
         self.m.frames_in.inc(stream=frame.stream_id)
         self.publisher.publish("raw", frame)
         t0 = time.perf_counter()
-        outputs = st.engine.push(frame)
+        try:
+            outputs = st.engine.push(frame)
+        except ValueError as exc:  # the engine refused the frame (e.g. a duplicate body id)
+            self._reject("invalid", str(exc))
+            return
         compute = time.perf_counter() - t0
+        st.frames += 1
+        st.bodies = len(frame.bodies)
+        st.note_arrival(int(frame.sensor_time_ns), item.arrival_ns)
         if any(kind == "live" for kind, _ in outputs):
             self.m.live_compute.observe(compute)
-        self._publish_outputs(st, outputs, trigger_ns=item.arrival_ns)
+        self._publish_outputs(st, outputs)
 
     # ------------------------------------------------------------------ output
-    def _publish_outputs(self, st: _Stream, outputs, trigger_ns: int | None = None) -> None:
+    def _publish_outputs(self, st: _Stream, outputs) -> None:
         if not outputs:
             return
-        now = time.monotonic_ns()
-        trigger = trigger_ns if trigger_ns is not None else st.last_arrival_ns
-        clean_seen = False
         for kind, out in outputs:
             self.publisher.publish(kind, out)
             if out.filled:
                 if kind == "clean":
                     self.m.filled.inc()
                 continue
+            now = time.monotonic_ns()
+            t = int(out.sensor_time_ns)
             if kind == "live":
-                arrival = st.arrivals.get(out.seq)
+                arrival = st.arrival_of(t)
                 if arrival is not None:
                     self.m.live_latency.observe((now - arrival) / 1e9)
             elif kind == "clean":
-                arrival = st.arrivals.pop(out.seq, None)
+                arrival, trigger = st.clean_out(t)
                 if arrival is not None:
                     self.m.clean_latency.observe((now - arrival) / 1e9)
-                clean_seen = True
-        if clean_seen and trigger:
-            self.m.clean_compute.observe(max(0.0, (time.monotonic_ns() - trigger) / 1e9))
+                if trigger is not None:
+                    self.m.clean_compute.observe(max(0.0, (now - trigger) / 1e9))
 
     def _poll_engines(self) -> None:
         for st in self.streams.values():
@@ -266,12 +310,15 @@ class Service:
         self.m.bodies.set(sum(st.bodies for st in self.streams.values()))
         degraded = False
         for st in self.streams.values():
-            metrics = getattr(st.engine, "metrics", None)
-            if metrics is not None:
-                try:
-                    degraded |= bool(metrics().get("degraded", False))
-                except Exception:  # metrics must never take the service down
-                    pass
+            try:
+                em = st.engine.metrics()
+            except Exception:  # metrics must never take the service down
+                continue
+            degraded |= bool(em.get("degraded", False))
+            late = int(em.get("frames_dropped_late", 0))
+            if late > st.late_seen:
+                self.m.late.inc(late - st.late_seen)
+                st.late_seen = late
         self.m.degraded.set(1.0 if degraded else 0.0)
 
     def status_line(self) -> str:
@@ -343,10 +390,13 @@ class Service:
     def _flush(self) -> None:
         for st in self.streams.values():
             self._poll_engines()
-            self._publish_outputs(st, st.engine.flush())
+            self._publish_outputs(st, self._engine_flush(st))
             close = getattr(st.engine, "close", None)
             if close is not None:
                 close()
+
+    def _engine_flush(self, st: _Stream):
+        return st.engine.flush(timeout=self.flush_timeout_s)
 
     def close(self) -> None:
         self.publisher.close()
