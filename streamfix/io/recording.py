@@ -282,7 +282,18 @@ def read_recording_contents(path: str | Path) -> RecordingContents:
     skeletons: dict[str, SkeletonMessage] = {}
     known: dict[str, Skeleton] = {}
     skipped: Counter = Counter()
-    for rec in _scan(Path(path), scan):
+    records = list(_scan(Path(path), scan))
+    # Skeleton messages first: a recorder that joined mid-stream may have stored frames
+    # before the stream's next skeleton message; they decode all the same.
+    for rec in records:
+        if rec.topic.startswith(b"sf/meta/"):
+            try:
+                msg = decode_message(rec.payload)
+            except WireError:
+                continue  # counted in the main pass
+            if isinstance(msg, SkeletonMessage):
+                known[msg.skeleton.name] = msg.skeleton
+    for rec in records:
         try:
             kind, stream = parse_topic(rec.topic)
             msg = decode_message(rec.payload, known)
@@ -291,7 +302,6 @@ def read_recording_contents(path: str | Path) -> RecordingContents:
             continue
         if isinstance(msg, SkeletonMessage):
             skeletons[msg.stream_id] = msg
-            known[msg.skeleton.name] = msg.skeleton
         elif kind != "meta":
             frames.append(msg)
             kinds.append(kind)
