@@ -48,8 +48,9 @@ def _fmt(v, scale=1.0, digits=4) -> str:
     return f"{v * scale:.{digits}f}"
 
 
-def print_table(records: list[dict], out=sys.stdout) -> None:
+def print_table(records: list[dict], out=None) -> None:
     """Human-readable tables: one per (file, rate, protocol)."""
+    out = sys.stdout if out is None else out
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in records:
         groups[(r["file"], r["rate_hz"], r["protocol"])].append(r)
