@@ -1,0 +1,159 @@
+"""The prior as the solver's initialiser and as the filler of long-missing joints (onnxruntime only).
+
+How the other layers call it
+----------------------------
+* Solver initialisation (pipeline / streaming engine, any window length and rate)::
+
+      from streamfix.prior.init import prior_initial_guess
+      init = prior_initial_guess(D, observed, rate_hz)          # (T, J, 3), no NaN
+      result = streamfix.core.alm.solve(D, observed, bones, init=init)
+
+  ``method="latent"`` (default) gives D(z*) (Eq. 1), ``method="encode"`` the cheaper
+  D(E(Y)). Observed joints are returned unchanged (``keep_observed=True``), unobserved
+  ones come from the prior. Cost: one batched call per 64-frame (30 Hz) window at hop 32.
+
+* Joints missing for longer than the solver can bridge (streaming engine, ``clean``)::
+
+      from streamfix.prior.init import fill_long_gaps
+      filled, recovered = fill_long_gaps(D, observed, rate_hz, min_gap_frames=15)
+      # recovered (T, J) bool: flag these samples as recovered in the output
+
+  Every run of >= ``min_gap_frames`` missing frames of a joint gets D(z*)'s value,
+  shifted by a linearly varying offset so that it meets the observed samples at both
+  ends of the gap (an edge gap keeps the constant offset of its one observed end).
+
+Both accept only the prior's skeleton (Kinect v2, 25 joints); ``prior_available()``
+tells whether a prior for a joint count is shipped, so callers can skip it otherwise.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .data import cut_windows, resample_masked
+from .runtime import Prior, load_default_prior
+
+__all__ = ["prior_initial_guess", "fill_long_gaps", "prior_available", "overlap_add"]
+
+
+def prior_available(n_joints: int, prior: Prior | None = None) -> bool:
+    """True when the (default) prior handles skeletons of ``n_joints`` joints."""
+    try:
+        p = prior or load_default_prior()
+    except (FileNotFoundError, ValueError):
+        return False
+    return p.n_joints == n_joints
+
+
+def overlap_add(windows: np.ndarray, starts: np.ndarray, n_frames: int) -> np.ndarray:
+    """Blend (W, T, J, 3) windows placed at ``starts`` into (n_frames, J, 3) with sin^2 weights."""
+    w_len = windows.shape[1]
+    weight = np.sin(np.pi * (np.arange(w_len) + 0.5) / w_len) ** 2 + 1e-3
+    idx = (starts[:, None] + np.arange(w_len)[None, :]).ravel()
+    keep = idx < n_frames
+    acc = np.zeros((n_frames,) + windows.shape[2:])
+    wsum = np.zeros(n_frames)
+    wts = np.broadcast_to(weight, (len(starts), w_len)).ravel()[keep]
+    np.add.at(acc, idx[keep], windows.reshape((-1,) + windows.shape[2:])[keep] * wts[:, None, None])
+    np.add.at(wsum, idx[keep], wts)
+    return acc / np.maximum(wsum, 1e-12)[:, None, None]
+
+
+def _resample_full(x: np.ndarray, rate_in: float, rate_out: float, n_out: int) -> np.ndarray:
+    """Linear resampling of a complete (T, J, 3) array to ``n_out`` frames at ``rate_out`` (edges held)."""
+    n = x.shape[0]
+    f = np.clip(np.arange(n_out) * (rate_in / rate_out), 0, n - 1)
+    i0 = np.floor(f).astype(np.intp)
+    i1 = np.minimum(i0 + 1, n - 1)
+    w = (f - i0)[:, None, None]
+    return (1 - w) * x[i0] + w * x[i1]
+
+
+def prior_initial_guess(
+    positions: np.ndarray,
+    observed: np.ndarray,
+    rate_hz: float,
+    *,
+    prior: Prior | None = None,
+    method: str = "latent",
+    keep_observed: bool = True,
+    max_iter: int = 8,
+) -> np.ndarray:
+    """A complete (T, J, 3) metre estimate from the prior for any T and rate.
+
+    The motion is resampled to the prior's rate (30 Hz), cut into windows of the
+    prior's length at half-window hop (a shorter motion is one window padded with
+    unobserved frames), each window reconstructed (``method``: ``"latent"`` = D(z*),
+    ``"encode"`` = D(E(Y))), blended by overlap-add and resampled back. With
+    ``keep_observed`` observed joints keep their input values. A motion with nothing
+    observed is returned as all-NaN.
+    """
+    prior = prior or load_default_prior()
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != (prior.n_joints, 3):
+        raise ValueError(f"positions must be (T, {prior.n_joints}, 3) for the prior's skeleton, got {x.shape}")
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
+    if obs.shape != x.shape[:2]:
+        raise ValueError(f"observed must be {x.shape[:2]}, got {obs.shape}")
+    n = x.shape[0]
+    if n == 0 or not obs.any():
+        return np.full_like(x, np.nan)
+    if method not in ("latent", "encode"):
+        raise ValueError(f"method must be 'latent' or 'encode', got {method!r}")
+    xr, obr = resample_masked(x, obs, rate_hz, prior.rate_hz)
+    w_len = prior.window
+    wins, masks, starts = cut_windows(xr, obr, w_len, w_len // 2)
+    wins = np.nan_to_num(wins)
+    if method == "latent":
+        from .latent import fit_latent
+
+        rec = fit_latent(prior, wins, masks, max_iter=max_iter).decoded
+    else:
+        rec = prior.reconstruct(wins, masks)
+    est = overlap_add(rec, starts, xr.shape[0])
+    if xr.shape[0] != n:
+        est = _resample_full(est, prior.rate_hz, rate_hz, n)
+    if keep_observed:
+        est[obs] = x[obs]
+    return est
+
+
+def fill_long_gaps(
+    positions: np.ndarray,
+    observed: np.ndarray,
+    rate_hz: float,
+    *,
+    min_gap_frames: int,
+    prior: Prior | None = None,
+    estimate: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fill runs of >= ``min_gap_frames`` missing frames per joint from D(z*); returns (positions, filled mask).
+
+    Observed samples and shorter gaps are returned untouched (short gaps stay NaN for
+    the solver or interpolation to handle). ``estimate`` may pass a precomputed
+    ``prior_initial_guess(..., keep_observed=False)`` to avoid a second prior run.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
+    n, n_j = obs.shape
+    out = np.where(obs[..., None], x, np.nan)
+    if n == 0 or obs.all() or not obs.any():
+        return out, np.zeros_like(obs)
+    idx = np.arange(n)[:, None]
+    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
+    nxt = np.minimum.accumulate(np.where(obs, idx, n)[::-1], axis=0)[::-1]
+    run = nxt - prev - 1  # length of the gap each missing sample sits in
+    fill = ~obs & (run >= min_gap_frames)
+    if not fill.any():
+        return out, fill
+    p = estimate if estimate is not None else prior_initial_guess(x, obs, rate_hz, prior=prior, keep_observed=False)
+    jj = np.arange(n_j)[None, :]
+    has_p, has_n = prev >= 0, nxt < n
+    pc, nc = np.clip(prev, 0, n - 1), np.clip(nxt, 0, n - 1)
+    d_prev = np.where(has_p[..., None], np.nan_to_num(x[pc, jj]) - p[pc, jj], 0.0)
+    d_next = np.where(has_n[..., None], np.nan_to_num(x[nc, jj]) - p[nc, jj], 0.0)
+    d_prev = np.where((~has_p & has_n)[..., None], d_next, d_prev)
+    d_next = np.where((has_p & ~has_n)[..., None], d_prev, d_next)
+    a = np.clip((idx - prev) / np.maximum(nxt - prev, 1), 0.0, 1.0)[..., None]
+    corrected = p + (1 - a) * d_prev + a * d_next
+    out[fill] = corrected[fill]
+    return out, fill

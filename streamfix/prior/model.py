@@ -1,0 +1,122 @@
+"""The temporal convolutional autoencoder of Lohit et al., Sec. 4.1 (torch; training/export only).
+
+Never imported at run time: ``streamfix.prior.runtime`` runs the exported ONNX graphs.
+
+Architecture (paper Sec. 4.1 and Appendix A.1, sizes scaled to our small data set):
+
+* **Encoder E**: ``levels`` blocks of [1-D convolution over time (kernel 4, 'same'
+  padding) -> ReLU -> average pooling by 2], then a fully connected layer to the
+  latent ``z`` (``latent`` values). Input channels are the 3J normalised coordinates
+  (zero where unobserved, as in the paper) **plus** the J-channel observation mask: a
+  zero coordinate is a legitimate root-relative value, so the encoder is told which
+  zeros mean "missing" (a deviation from the paper, which feeds zeros only).
+* **Decoder D**: the mirror image: a fully connected layer from ``z`` to
+  ``channels x (T / 2^levels)`` -> ReLU, then ``levels`` transposed 1-D convolutions
+  (kernel 4, stride 2, padding 1: each exactly doubles the frame count) with ReLU
+  between them; the last one outputs the 3J coordinates (linear).
+
+Tensors at the ONNX boundary are frame-major, as the rest of streamfix:
+``y`` (B, T, J, 3), ``mask`` (B, T, J) float 0/1, ``z`` (B, L), ``x`` (B, T, J, 3).
+
+``DecoderJacobian`` is the decoder with forward-mode differentiation written out
+layer by layer (tangent of a linear layer = weight x tangent; of ReLU = tangent x
+[pre-activation > 0]), so that one ONNX call returns D(z) and the exact Jacobian
+dD/dz (B, L, T*J*3) for the Gauss-Newton solve of Eq. (1), without torch at run time.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["TemporalAutoencoder", "Encoder", "Decoder", "DecoderJacobian"]
+
+
+class Encoder(nn.Module):
+    def __init__(self, n_joints: int, window: int, channels: int, latent: int, levels: int, kernel: int = 4):
+        super().__init__()
+        self.n_joints, self.window = n_joints, window
+        c_in = 4 * n_joints
+        self.convs = nn.ModuleList()
+        for _ in range(levels):
+            self.convs.append(nn.Conv1d(c_in, channels, kernel, padding="same"))
+            c_in = channels
+        self.pool = nn.AvgPool1d(2)
+        self.fc = nn.Linear(channels * (window >> levels), latent)
+
+    def forward(self, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        b = y.shape[0]
+        coords = (y * mask.unsqueeze(-1)).reshape(b, self.window, 3 * self.n_joints)
+        h = torch.cat([coords, mask], dim=2).transpose(1, 2)  # (B, 4J, T)
+        for conv in self.convs:
+            h = self.pool(F.relu(conv(h)))
+        return self.fc(h.flatten(1))
+
+
+class Decoder(nn.Module):
+    def __init__(self, n_joints: int, window: int, channels: int, latent: int, levels: int):
+        super().__init__()
+        self.n_joints, self.window, self.channels = n_joints, window, channels
+        self.t0 = window >> levels
+        self.fc = nn.Linear(latent, channels * self.t0)
+        self.deconvs = nn.ModuleList()
+        for i in range(levels):
+            c_out = 3 * n_joints if i == levels - 1 else channels
+            self.deconvs.append(nn.ConvTranspose1d(channels, c_out, 4, stride=2, padding=1))
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        b = z.shape[0]
+        h = F.relu(self.fc(z)).reshape(b, self.channels, self.t0)
+        for i, deconv in enumerate(self.deconvs):
+            h = deconv(h)
+            if i < len(self.deconvs) - 1:
+                h = F.relu(h)
+        return h.transpose(1, 2).reshape(b, self.window, self.n_joints, 3)
+
+
+class DecoderJacobian(nn.Module):
+    """D(z) and its exact Jacobian by forward-mode propagation of the L unit tangents (shares D's weights)."""
+
+    def __init__(self, decoder: Decoder, latent: int):
+        super().__init__()
+        self.decoder = decoder
+        self.latent = latent
+
+    def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        d = self.decoder
+        b = z.shape[0]
+        n_lat = self.latent
+        pre = d.fc(z)  # (B, C*T0)
+        # tangent of fc for the L unit directions: rows of W^T, the same for every batch item
+        tan = d.fc.weight.t().unsqueeze(0) * (pre > 0).to(z.dtype).unsqueeze(1)  # (B, L, C*T0)
+        h = F.relu(pre).reshape(b, d.channels, d.t0)
+        tan = tan.reshape(b * n_lat, d.channels, d.t0)
+        for i, deconv in enumerate(d.deconvs):
+            pre = deconv(h)
+            tan = F.conv_transpose1d(tan, deconv.weight, None, stride=2, padding=1)
+            if i < len(d.deconvs) - 1:
+                gate = (pre > 0).to(z.dtype)  # (B, C, T)
+                h = pre * gate
+                tan = (tan.reshape(b, n_lat, pre.shape[1], pre.shape[2]) * gate.unsqueeze(1)).reshape(
+                    b * n_lat, pre.shape[1], pre.shape[2]
+                )
+            else:
+                h = pre
+        x = h.transpose(1, 2).reshape(b, d.window, d.n_joints, 3)
+        jac = tan.reshape(b, n_lat, 3 * d.n_joints, d.window).transpose(2, 3).reshape(b, n_lat, -1)
+        return x, jac
+
+
+class TemporalAutoencoder(nn.Module):
+    """E and D together; ``forward(y, mask) -> D(E(Y))`` (B, T, J, 3)."""
+
+    def __init__(self, n_joints: int = 25, window: int = 64, channels: int = 64, latent: int = 32, levels: int = 4):
+        super().__init__()
+        if window % (1 << levels):
+            raise ValueError(f"window must be a multiple of 2^levels = {1 << levels} frames, got {window}")
+        self.config = dict(n_joints=n_joints, window=window, channels=channels, latent=latent, levels=levels)
+        self.encoder = Encoder(n_joints, window, channels, latent, levels)
+        self.decoder = Decoder(n_joints, window, channels, latent, levels)
+
+    def forward(self, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return self.decoder(self.encoder(y, mask))

@@ -1,0 +1,184 @@
+"""Run the exported prior with onnxruntime only (no torch): encode, decode, D(E(Y)).
+
+A model is a JSON *card* beside three ONNX graphs (see ``streamfix/prior/models/``):
+
+* ``encoder``: inputs ``y`` (B, T, J, 3) normalised coordinates (0 where unobserved) and
+  ``mask`` (B, T, J) 0/1; output ``z`` (B, L);
+* ``decoder``: input ``z`` (B, L); output ``x`` (B, T, J, 3) normalised coordinates;
+* ``decoder_jacobian``: input ``z`` (B, L); outputs ``x`` and ``jac`` (B, L, T*J*3),
+  the exact dD/dz used by the latent-space fit (``streamfix.prior.latent``).
+
+The card carries the window length T (frames), the rate (Hz), the latent size L,
+the normalisation (``streamfix.prior.normalize``: root joint and reference bone
+lengths) and a SHA-256 of each graph, checked on load.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from .normalize import WindowNorm, denormalise, normalise
+
+__all__ = ["Prior", "DEFAULT_CARD", "sha256_file", "load_default_prior"]
+
+DEFAULT_CARD = Path(__file__).resolve().parent / "models" / "kinect_v2.json"
+
+
+def sha256_file(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _session(path: Path, threads: int):
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+
+@dataclass
+class Prior:
+    """A loaded prior: card (dict) and onnxruntime sessions."""
+
+    card: dict
+    directory: Path
+    _encoder: object
+    _decoder: object
+    _jacobian: object
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, path: str | Path | None = None, *, threads: int = 1, verify: bool = True) -> "Prior":
+        """Load a card (``.json`` file, or a directory holding one ``*.json``); default: the shipped Kinect v2 model.
+
+        ``threads``: onnxruntime intra-op threads (1 = single-threaded, the default, so
+        that many bodies can be solved on separate cores). ``verify`` checks each
+        graph's SHA-256 against the card.
+        """
+        card_path = DEFAULT_CARD if path is None else Path(path)
+        if card_path.is_dir():
+            cards = sorted(card_path.glob("*.json"))
+            if len(cards) != 1:
+                raise FileNotFoundError(f"{card_path}: expected exactly one model card *.json, found {len(cards)}")
+            card_path = cards[0]
+        if not card_path.is_file():
+            raise FileNotFoundError(
+                f"prior model card not found at {card_path}; train one with `streamfix train-prior --out DIR`"
+            )
+        card = json.loads(card_path.read_text())
+        directory = card_path.parent
+        sessions = []
+        for role in ("encoder", "decoder", "decoder_jacobian"):
+            entry = card["files"][role]
+            f = directory / entry["file"]
+            if verify:
+                digest = sha256_file(f)
+                if digest != entry["sha256"]:
+                    raise ValueError(f"{f}: SHA-256 {digest} does not match the card's {entry['sha256']}")
+            sessions.append(_session(f, threads))
+        return cls(card, directory, *sessions)
+
+    # --------------------------------------------------------------- properties
+    @property
+    def window(self) -> int:
+        """Frames per window T."""
+        return int(self.card["window"])
+
+    @property
+    def rate_hz(self) -> float:
+        return float(self.card["rate_hz"])
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.card["n_joints"])
+
+    @property
+    def latent_size(self) -> int:
+        return int(self.card["latent"])
+
+    @property
+    def bones(self) -> np.ndarray:
+        return np.asarray(self.card["normalisation"]["bones"], dtype=np.intp).reshape(-1, 2)
+
+    @property
+    def reference_lengths(self) -> np.ndarray:
+        return np.asarray(self.card["normalisation"]["reference_bone_lengths_m"], dtype=np.float64)
+
+    @property
+    def facing_template(self) -> np.ndarray | None:
+        t = self.card["normalisation"].get("facing_template")
+        return None if t is None else np.asarray(t, dtype=np.float64)
+
+    @property
+    def root_index(self) -> int:
+        return int(self.card["normalisation"]["root_index"])
+
+    # ------------------------------------------------------------ raw networks
+    def encode(self, y: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """E(Y): normalised windows (B, T, J, 3) and masks (B, T, J) -> latents (B, L)."""
+        y = np.asarray(y, dtype=np.float32)
+        mask = np.asarray(mask, dtype=np.float32)
+        self._check(y.shape[1:3], "encode")
+        y = np.where(mask[..., None] > 0, y, 0.0).astype(np.float32)
+        return self._encoder.run(None, {"y": y, "mask": mask})[0]
+
+    def decode(self, z: np.ndarray) -> np.ndarray:
+        """D(z): latents (B, L) -> normalised windows (B, T, J, 3) (float32)."""
+        return self._decoder.run(None, {"z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)})[0]
+
+    def decode_with_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """D(z) (B, T, J, 3) and dD/dz (B, L, T*J*3), both float32, in one call."""
+        x, jac = self._jacobian.run(None, {"z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)})
+        return x, jac
+
+    def _check(self, tj: tuple, what: str) -> None:
+        if tuple(tj) != (self.window, self.n_joints):
+            raise ValueError(
+                f"prior.{what}: expected windows of {self.window} frames x {self.n_joints} joints, "
+                f"got {tj[0]} x {tj[1]} (use streamfix.prior.init.prior_initial_guess for other lengths)"
+            )
+
+    # ----------------------------------------------------------- metre windows
+    def normalise(self, windows: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[WindowNorm]]:
+        """Metre windows (B, T, J, 3) + masks (B, T, J) -> normalised (B, T, J, 3), masks, per-window norms."""
+        ys, norms = [], []
+        bones, ref, tmpl = self.bones, self.reference_lengths, self.facing_template
+        for w, o in zip(windows, observed):  # windows, not frames
+            y, n = normalise(w, o, bones, ref, self.root_index, tmpl)
+            ys.append(y)
+            norms.append(n)
+        obs = np.asarray(observed, dtype=bool) & np.isfinite(windows).all(axis=-1)
+        return np.stack(ys), obs, norms
+
+    def reconstruct(self, window: np.ndarray, observed: np.ndarray) -> np.ndarray:
+        """D(E(Y)) in metres: (T, J, 3) window + (T, J) mask, or batches (B, T, J, 3) + (B, T, J).
+
+        Every joint of the output comes from the decoder (observed ones too); see
+        ``streamfix.prior.init.prior_initial_guess`` to keep observed joints.
+        """
+        window = np.asarray(window, dtype=np.float64)
+        observed = np.asarray(observed, dtype=bool)
+        single = window.ndim == 3
+        if single:
+            window, observed = window[None], observed[None]
+        if window.shape[:3] != observed.shape or window.shape[-1] != 3:
+            raise ValueError(f"expected (B, T, J, 3) windows and (B, T, J) masks, got {window.shape} and {observed.shape}")
+        self._check(window.shape[1:3], "reconstruct")
+        y, obs, norms = self.normalise(window, observed)
+        x = self.decode(self.encode(y, obs))
+        out = np.stack([denormalise(xi, n) for xi, n in zip(x, norms)])
+        return out[0] if single else out
+
+
+@lru_cache(maxsize=4)
+def load_default_prior(path: str | None = None, threads: int = 1) -> Prior:
+    """The shipped (or given) prior, loaded once per process and shared."""
+    return Prior.load(path, threads=threads)

@@ -1,0 +1,254 @@
+"""Train the temporal autoencoder prior and export it to ONNX (torch; offline only).
+
+Training follows Lohit et al. Sec. 4.2 (the "ambient" autoencoder): the training windows
+are themselves partially observed (Kinect: tracked joints only; padding of short
+takes), the encoder sees a further randomly dropped subset (``data.drop_joints``), and
+the loss is the masked Euclidean loss over the joint-frames the *data* observed:
+
+    L(Y, X^) = sum_n sum_j m_nj || Y_nj - X^_nj ||^2 / (3 sum m)                (Sec. 4.2)
+
+with X^ = D(E(A'Y)) (A' = the extra drop). Adam (lr 2e-3, divided by 10 after 75 %
+and 90 % of the steps, as in the paper's Appendix A.1, scaled to our epochs).
+
+Deterministic for a seed: numpy ``Generator(seed)`` draws every window and mask,
+``torch.manual_seed(seed)`` the weights, one torch thread.
+"""
+from __future__ import annotations
+
+import json
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from streamfix.skeletons import KINECT_V2
+
+from .data import (
+    HELD_OUT,
+    MODEL_RATE_HZ,
+    Take,
+    cut_windows,
+    facing_template,
+    load_takes,
+    make_batch,
+    mean_bone_lengths,
+    resample_masked,
+    split_takes,
+)
+from .model import DecoderJacobian, TemporalAutoencoder
+from .normalize import KINECT_V2_ROOT, KINECT_V2_SCALE_BONES, apply_norm, normalise
+from .runtime import sha256_file
+
+__all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and_export"]
+
+
+class TrainConfig:
+    """Hyper-parameters (sizes scaled down from the paper's HDM05 model to ~2 000 frames of data)."""
+
+    def __init__(
+        self,
+        epochs: int = 60,
+        seed: int = 0,
+        window: int = 64,
+        channels: int = 96,
+        latent: int = 48,
+        levels: int = 4,
+        batch: int = 64,
+        steps_per_epoch: int = 40,
+        lr: float = 2e-3,
+        threads: int = 1,
+    ):
+        self.epochs, self.seed, self.window = epochs, seed, window
+        self.channels, self.latent, self.levels = channels, latent, levels
+        self.batch, self.steps_per_epoch, self.lr, self.threads = batch, steps_per_epoch, lr, threads
+
+    def as_dict(self) -> dict:
+        return dict(vars(self))
+
+
+def held_out_windows(
+    takes: list[Take], bones: np.ndarray, ref: np.ndarray, window: int, drop_fraction: float, seed: int,
+    template: np.ndarray | None = None,
+) -> tuple[np.ndarray, ...]:
+    """Fixed evaluation windows of the held-out takes at 30 Hz (hop window/2), a random
+    ``drop_fraction`` of joints dropped for each whole window; normalised like ``make_batch``.
+    Returns (y_in, m_in, y_target, m_target, scale) as float32 arrays (scale: (W,) metres per unit)."""
+    rng = np.random.default_rng(seed)
+    ys, ms, yt, mt, sc = [], [], [], [], []
+    for take in takes:
+        pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, MODEL_RATE_HZ)
+        wp, wm, _ = cut_windows(pos, obs, window, window // 2)
+        n_j = wp.shape[2]
+        for p, m in zip(wp, wm):  # windows
+            keep = m.copy()
+            keep[:, rng.choice(n_j, size=int(round(drop_fraction * n_j)), replace=False)] = False
+            yi, norm = normalise(p, keep, bones, ref, template=template)
+            ys.append(yi)
+            ms.append(keep)
+            yt.append(np.where(m[..., None], apply_norm(np.nan_to_num(p), norm), 0.0))
+            mt.append(m)
+            sc.append(norm.scale)
+    f = np.float32
+    return (np.asarray(ys, f), np.asarray(ms, f), np.asarray(yt, f), np.asarray(mt, f), np.asarray(sc, f))
+
+
+def _masked_loss(x: torch.Tensor, y: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """Sec. 4.2 masked loss: mean squared error over observed coordinates."""
+    return (((x - y) ** 2) * m.unsqueeze(-1)).sum() / (3.0 * m.sum().clamp(min=1.0))
+
+
+def train(
+    train_takes: list[Take],
+    test_takes: list[Take],
+    config: TrainConfig,
+    log: Callable[[str], None] = print,
+) -> tuple[TemporalAutoencoder, dict]:
+    """Train on ``train_takes``; print progress and the held-out loss each epoch; return (model, history)."""
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    bones = KINECT_V2.bone_array
+    ref = mean_bone_lengths(train_takes, bones)
+    template = facing_template(train_takes, bones, ref)
+    model = TemporalAutoencoder(25, config.window, config.channels, config.latent, config.levels)
+    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    total = config.epochs * config.steps_per_epoch
+    sched = torch.optim.lr_scheduler.MultiStepLR(opt, [int(0.75 * total), int(0.9 * total)], gamma=0.1)
+    held = held_out_windows(test_takes, bones, ref, config.window, 0.5, config.seed + 1, template) if test_takes else None
+    history: dict = {"epoch": [], "train_loss": [], "held_out_loss": [], "held_out_rmse_dropped_m": []}
+    t_start = time.perf_counter()
+    for epoch in range(1, config.epochs + 1):
+        model.train()
+        losses = []
+        for _ in range(config.steps_per_epoch):
+            yi, mi, yt, mt = (torch.from_numpy(a) for a in make_batch(train_takes, rng, config.batch, bones, ref, config.window, template=template))
+            loss = _masked_loss(model(yi, mi), yt, mt)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            losses.append(loss.item())
+        msg = f"epoch {epoch:3d}/{config.epochs}  train loss {np.mean(losses):.5f}"
+        history["epoch"].append(epoch)
+        history["train_loss"].append(float(np.mean(losses)))
+        if held is not None and len(held[0]):
+            model.eval()
+            with torch.no_grad():
+                yi, mi, yt, mt, sc = (torch.from_numpy(a) for a in held)
+                x = model(yi, mi)
+                hl = float(_masked_loss(x, yt, mt))
+                dropped = (mt > 0) & (mi == 0)
+                err2 = ((x - yt) ** 2).sum(-1) * sc[:, None, None] ** 2
+                rmse = float(torch.sqrt(err2[dropped].mean())) if dropped.any() else float("nan")
+            history["held_out_loss"].append(hl)
+            history["held_out_rmse_dropped_m"].append(rmse)
+            msg += f"  held-out loss {hl:.5f}  held-out D(E(Y)) RMSE on dropped joints (OTP 50%) {100 * rmse:.2f} cm"
+        log(msg + f"  [{time.perf_counter() - t_start:.0f} s]")
+    history["reference_bone_lengths_m"] = ref.tolist()
+    history["facing_template"] = np.round(template, 5).tolist()
+    return model, history
+
+
+def export_onnx(model: TemporalAutoencoder, out_dir: str | Path, stem: str = "kinect_v2") -> dict[str, dict]:
+    """Export encoder, decoder and decoder-Jacobian with the legacy exporter (``dynamo=False``), batch dynamic."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model = model.eval()
+    cfg = model.config
+    t, j, l = cfg["window"], cfg["n_joints"], cfg["latent"]
+    y = torch.zeros(2, t, j, 3)
+    m = torch.ones(2, t, j)
+    z = torch.zeros(2, l)
+    files = {}
+    specs = {
+        "encoder": (model.encoder, (y, m), ["y", "mask"], ["z"]),
+        "decoder": (model.decoder, (z,), ["z"], ["x"]),
+        "decoder_jacobian": (DecoderJacobian(model.decoder, l), (z,), ["z"], ["x", "jac"]),
+    }
+    for role, (module, args, inputs, outputs) in specs.items():
+        path = out_dir / f"{stem}.{role}.onnx"
+        dyn = {name: {0: "batch"} for name in inputs + outputs}
+        with torch.no_grad():
+            torch.onnx.export(
+                module, args, str(path), input_names=inputs, output_names=outputs,
+                dynamic_axes=dyn, opset_version=17, dynamo=False,
+            )
+        files[role] = {"file": path.name, "sha256": sha256_file(path), "inputs": inputs, "outputs": outputs}
+    return files
+
+
+def train_and_export(
+    data_dir: str | Path,
+    out_dir: str | Path,
+    config: TrainConfig,
+    held_out: tuple[str, ...] = HELD_OUT,
+    log: Callable[[str], None] = print,
+    evaluate: bool = True,
+) -> dict:
+    """Load ``data_dir``, train, export the three graphs and write the card ``<out>/kinect_v2.json``."""
+    takes = load_takes(data_dir)
+    train_takes, test_takes = split_takes(takes, held_out)
+    log(
+        f"{len(train_takes)} training takes ({sum(t.positions.shape[0] / t.rate_hz for t in train_takes):.1f} s), "
+        f"held out: {', '.join(t.name for t in test_takes) or 'none'}"
+    )
+    model, history = train(train_takes, test_takes, config, log)
+    out_dir = Path(out_dir)
+    files = export_onnx(model, out_dir)
+    card = {
+        "name": "streamfix temporal-convolution autoencoder prior (Lohit et al.)",
+        "skeleton": "kinect_v2",
+        "n_joints": 25,
+        "window": config.window,
+        "rate_hz": MODEL_RATE_HZ,
+        "latent": config.latent,
+        "channels": config.channels,
+        "levels": config.levels,
+        "files": files,
+        "normalisation": {
+            "root_joint": "SpineBase",
+            "root_index": KINECT_V2_ROOT,
+            "method": "x_norm = (x - root_t) / k; root_t = SpineBase (interpolated where missing; "
+            "hip midpoint / mean of observed joints if absent from the window); "
+            "k = median over observed scale bones of (median bone length / reference length), clipped to [0.5, 2]",
+            "reference_bone_lengths_m": history["reference_bone_lengths_m"],
+            "bones": KINECT_V2.bone_array.tolist(),
+            "scale_bones_child_index": list(KINECT_V2_SCALE_BONES),
+            "facing_template": history["facing_template"],
+            "facing": "turned about y by the 2-D Procrustes angle onto facing_template (mean Kinect v2 pose, "
+            "root-relative, scale-normalised, facing the sensor)",
+            "unobserved_input": "0 in y and 0 in mask",
+        },
+        "training": {
+            "data": [
+                {"name": t.name, "source": t.source, "frames": int(t.positions.shape[0]), "rate_hz": t.rate_hz}
+                for t in train_takes
+            ],
+            "held_out": [t.name for t in test_takes],
+            "split": "whole takes held out (never frames of a training take)",
+            "observed": "BVH retargeted to Kinect v2: all joints; Kinect v2 CSV: tracked joints only",
+            "augmentation": "rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring (x negated + joint swap), "
+            "speed x0.7..x1.4 by linear resampling, joint dropping (subsets, limbs, runs of frames)",
+            "loss": "masked (ambient) MSE over the data's observed joint-frames (Lohit et al. Sec. 4.2)",
+            "config": config.as_dict(),
+            "final_train_loss": history["train_loss"][-1],
+            "final_held_out_loss": history["held_out_loss"][-1] if history["held_out_loss"] else None,
+            "torch": torch.__version__,
+            "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        },
+        "held_out_scores": [],
+    }
+    card_path = out_dir / "kinect_v2.json"
+    card_path.write_text(json.dumps(card, indent=1))
+    if evaluate and test_takes:
+        from streamfix.evaluation.occlusion import score_prior_on_takes
+
+        card["held_out_scores"] = score_prior_on_takes(card_path, test_takes, seed=config.seed)
+        card_path.write_text(json.dumps(card, indent=1))
+        for rec in card["held_out_scores"]:
+            log(f"held-out {rec['take']:>16s} {rec['pattern']:>10s} OTP {rec['test_otp']:3.0f}%  {rec['method']:>12s}  RMSE {100 * rec['rmse_m']:.2f} cm")
+    log(f"wrote {card_path}")
+    return card

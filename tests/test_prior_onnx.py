@@ -1,0 +1,75 @@
+"""The exported ONNX graphs reproduce the torch model (encoder, decoder, decoder Jacobian) to 1e-5."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip(
+    "torch", reason="PyTorch is not installed (the optional `train` extra: pip install streamfix[train])"
+)
+
+from streamfix.prior.model import DecoderJacobian, TemporalAutoencoder  # noqa: E402
+from streamfix.prior.runtime import _session  # noqa: E402
+from streamfix.prior.train import export_onnx  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    torch.manual_seed(3)
+    model = TemporalAutoencoder(n_joints=25, window=16, channels=8, latent=5, levels=2).eval()
+    out = tmp_path_factory.mktemp("onnx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        files = export_onnx(model, out, stem="tiny")
+    sessions = {role: _session(out / f["file"], 1) for role, f in files.items()}
+    return model, sessions
+
+
+def _inputs(batch: int, seed: int):
+    rng = np.random.default_rng(seed)
+    y = rng.normal(0, 0.3, (batch, 16, 25, 3)).astype(np.float32)
+    mask = (rng.random((batch, 16, 25)) > 0.4).astype(np.float32)
+    return y, mask
+
+
+@pytest.mark.parametrize("batch", [1, 3])  # batch dimension is dynamic
+def test_encoder_decoder_match_torch(tiny, batch):
+    model, s = tiny
+    y, mask = _inputs(batch, batch)
+    with torch.no_grad():
+        z_t = model.encoder(torch.from_numpy(y), torch.from_numpy(mask)).numpy()
+        x_t = model.decoder(torch.from_numpy(z_t)).numpy()
+    z_o = s["encoder"].run(None, {"y": y, "mask": mask})[0]
+    x_o = s["decoder"].run(None, {"z": z_t})[0]
+    assert z_o.shape == (batch, 5) and x_o.shape == (batch, 16, 25, 3)
+    np.testing.assert_allclose(z_o, z_t, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(x_o, x_t, atol=1e-5, rtol=0)
+
+
+def test_encoder_ignores_values_of_unobserved_joints(tiny):
+    _, s = tiny
+    y, mask = _inputs(2, 7)
+    y2 = y.copy()
+    y2[mask == 0] += 5.0  # garbage where unobserved must not change E(Y)
+    z1 = s["encoder"].run(None, {"y": y, "mask": mask})[0]
+    z2 = s["encoder"].run(None, {"y": y2, "mask": mask})[0]
+    np.testing.assert_allclose(z1, z2, atol=1e-6)
+
+
+def test_decoder_jacobian_graph_is_the_exact_jacobian(tiny):
+    model, s = tiny
+    z = np.random.default_rng(1).normal(0, 1, (2, 5)).astype(np.float32)
+    x_o, jac_o = s["decoder_jacobian"].run(None, {"z": z})
+    assert jac_o.shape == (2, 5, 16 * 25 * 3)
+    for b in range(2):
+        jt = torch.autograd.functional.jacobian(
+            lambda v: model.decoder(v.unsqueeze(0)).reshape(-1), torch.from_numpy(z[b]),
+            vectorize=True, strategy="forward-mode",
+        ).detach().numpy()  # (N, L), autograd's own forward-mode differentiation
+        np.testing.assert_allclose(jac_o[b], jt.T, atol=1e-5, rtol=0)
+    with torch.no_grad():
+        np.testing.assert_allclose(x_o, model.decoder(torch.from_numpy(z)).numpy(), atol=1e-5, rtol=0)
+        x_j, jac_j = DecoderJacobian(model.decoder, 5)(torch.from_numpy(z))
+    np.testing.assert_allclose(jac_o, jac_j.numpy(), atol=1e-5, rtol=0)
