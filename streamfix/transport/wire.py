@@ -365,10 +365,12 @@ def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> Skel
             )
         positions = np.frombuffer(pos_b, dtype=_F32).astype(np.float64).reshape(J, 3)
         confidence = np.frombuffer(conf_b, dtype=_F32).astype(np.float64)
-        # NaN confidence means unknown -> missing; clip the rest into [0, 1].
-        confidence = np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0)
-        bad = ~np.isfinite(positions).all(axis=1)
-        if bad.any():
+        if not ((confidence >= 0.0) & (confidence <= 1.0)).all():  # NaN fails both tests
+            # NaN confidence means unknown -> missing; clip the rest into [0, 1].
+            confidence = np.where(confidence > 1.0, 1.0, np.where(confidence >= 0.0, confidence, 0.0))
+        finite = np.isfinite(positions)
+        if not finite.all():  # a non-finite coordinate makes the joint missing
+            bad = ~finite.all(axis=1)
             positions[bad] = np.nan
             confidence[bad] = 0.0
         recovered = None
