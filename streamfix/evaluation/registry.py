@@ -143,34 +143,23 @@ def _read(path: Path) -> Motion:
 def load_motion(path: str | Path, rate_hz: float | None = None) -> Motion:
     """Read a motion file and bring it to ``rate_hz`` (None = native rate).
 
-    An integer ratio (120 -> 30 Hz) is exact decimation when no resampler is
-    available; otherwise ``streamfix.core.resample`` does it.
+    Resampling is :func:`streamfix.core.resample.resample_positions` (an integer ratio
+    such as 120 -> 30 Hz takes every k-th frame exactly); confidence is sampled at the
+    nearer source frame and zeroed where the resampled sample is unobserved.
     """
+    from ..core.resample import resample_plan, resample_positions
+
     path = Path(path)
     motion = _read(path)
     if rate_hz is None or abs(rate_hz - motion.rate_hz) < 1e-6 * motion.rate_hz:
         return motion
-    try:
-        from ..core import resample as _rs
-    except ImportError:
-        _rs = None
-    if _rs is not None and hasattr(_rs, "resample_motion"):
-        return _rs.resample_motion(motion, rate_hz)
-    ratio = motion.rate_hz / rate_hz
-    step = int(round(ratio))
-    if step >= 1 and abs(ratio - step) < 1e-6:
-        return Motion(
-            motion.positions[::step].copy(),
-            motion.confidence[::step].copy(),
-            motion.timestamps[::step].copy(),
-            rate_hz,
-            motion.skeleton,
-            meta=dict(motion.meta),
-        )
-    raise ValueError(
-        f"{path}: cannot resample {motion.rate_hz:g} Hz to {rate_hz:g} Hz "
-        "(only integer decimation without streamfix.core.resample)"
-    )
+    pos, obs = resample_positions(motion.positions, motion.rate_hz, rate_hz, motion.observed)
+    a, b, w = resample_plan(motion.n_frames, motion.rate_hz, rate_hz)
+    near = np.where(w > 0.5, b, a)
+    conf = np.where(obs, np.minimum(motion.confidence[a], motion.confidence[b]), 0.0)
+    conf = np.where(w[:, None] == 0, np.where(obs, motion.confidence[near], 0.0), conf)
+    timestamps = motion.timestamps[0] + np.arange(pos.shape[0]) / float(rate_hz)
+    return Motion(pos, conf, timestamps, rate_hz, motion.skeleton, meta=dict(motion.meta))
 
 
 # Modules under streamfix.evaluation that may define PROTOCOLS = {name: run}.
