@@ -228,3 +228,12 @@ def test_topics():
     assert wire.resolve_topic_arg("clean") == b"sf/clean/"
     assert wire.resolve_topic_arg("live/kinect0") == b"sf/live/kinect0"
     assert wire.resolve_topic_arg("sf/") == b"sf/"
+
+
+def test_encoder_names_unencodable_fields():
+    with pytest.raises(WireError, match="stream id 'a/b'"):
+        wire.encode_frame(SkeletonFrame("a/b", 0, 0, "kinect_v2", []))
+    with pytest.raises(WireError, match="does not fit an unsigned 64-bit integer"):
+        wire.encode_frame(SkeletonFrame("a", 2**64, 0, "kinect_v2", []))
+    with pytest.raises(WireError, match="cannot encode frame of stream 'a' seq 1"):
+        wire.encode_frame(SkeletonFrame("a", 1, 2**70, "kinect_v2", []))

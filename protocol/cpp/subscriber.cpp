@@ -562,6 +562,11 @@ int subscribe(const std::string& endpoint, std::vector<std::string> topics, long
         }
         kind = topic.substr(s1 + 1, s2 - s1 - 1);
         stream = topic.substr(s2 + 1);
+        if (!(kind == "raw" || kind == "live" || kind == "clean" || kind == "meta") || !valid_stream(stream)) {
+            ++rejected;
+            std::fprintf(stderr, "rejected: topic: '%s' is not sf/<raw|live|clean|meta>/<stream>\n", topic.c_str());
+            continue;
+        }
         msgpack_unpacked keep;
         msgpack_unpacked_init(&keep);
         try {

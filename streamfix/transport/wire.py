@@ -192,7 +192,7 @@ def encode_frame(frame: SkeletonFrame, *, publish_time_ns: int | None = None) ->
     msg = {
         "v": PROTOCOL_VERSION,
         "type": "frame",
-        "stream": frame.stream_id,
+        "stream": check_stream_id(frame.stream_id),
         "seq": int(frame.seq),
         "t_sensor_ns": int(frame.sensor_time_ns),
         "t_publish_ns": int(frame.publish_time_ns if publish_time_ns is None else publish_time_ns),
@@ -201,7 +201,12 @@ def encode_frame(frame: SkeletonFrame, *, publish_time_ns: int | None = None) ->
         "filled": bool(frame.filled),
         "bodies": out_bodies,
     }
-    return msgpack.packb(msg, use_bin_type=True)
+    if not 0 <= msg["seq"] < 2**64:
+        raise WireError(f"seq {msg['seq']} does not fit an unsigned 64-bit integer", "field")
+    try:
+        return msgpack.packb(msg, use_bin_type=True)
+    except (OverflowError, TypeError, ValueError) as exc:
+        raise WireError(f"cannot encode frame of stream {frame.stream_id!r} seq {frame.seq}: {exc}", "field") from None
 
 
 def encode_skeleton_message(

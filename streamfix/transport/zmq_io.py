@@ -81,6 +81,7 @@ class Subscriber:
     so frames of skeletons outside the registry decode after the first repeat.
 
     ``counters``: ``received`` (multipart messages), ``frames``, ``skeletons``,
+    ``filtered`` (other topics, PULL only),
     ``malformed`` (total skipped as bad), one key per :class:`WireError` reason
     (``garbage``, ``truncated``, ``version``, ``skeleton``, ``joints``, ``field``,
     ``topic``, ``parts``) and ``ignored_type`` (unknown message types, skipped).
@@ -202,7 +203,8 @@ class Subscriber:
             parts = self.socket.recv_multipart(copy=True)
             topic = parts[0] if parts else b""
             if self.prefixes != (b"",) and not self._wanted(topic) and not topic.startswith(b"sf/meta/"):
-                continue  # a PULL socket receives everything; drop other topics unseen
+                self.counters["filtered"] += 1  # a PULL socket receives every topic
+                continue
             got = self.decode(parts)
             if got is None or not self._wanted(got.topic):
                 continue
