@@ -323,3 +323,38 @@ def test_result_contract_and_errors(clip):
         solve(gt, None, bones, bone_lengths=np.ones(3))
     with pytest.raises(ValueError, match="mode"):
         SolverParams(mode="pca")
+
+
+def test_entry_weights_scale_the_sparse_penalty(clip):
+    gt, bones = clip
+    D = corrupt(gt, 0.1, seed=9)
+    base = solve(D, None, bones)
+    ones = solve(D, None, bones, weights=np.ones(gt.shape[:2]))
+    assert np.array_equal(base.positions, ones.positions)
+    # weight 0 = the data term does not bind there: the same ALM iterates as not
+    # observing it (fixed centring, rho0, start and iteration count, since those are
+    # otherwise computed from the observed entries)
+    hidden = np.zeros(gt.shape[:2], dtype=bool)
+    hidden[30:50, [3, 9, 26]] = True
+    w = np.where(hidden, 0.0, 1.0)
+    p = SolverParams(center="none", rho0=0.05, tol=0.0, max_iter=40)
+    start = np.repeat(D.mean(axis=0, keepdims=True), len(D), axis=0)
+    weighted = solve(D, None, bones, gt_lengths := bone_lengths_per_frame(gt, bones)[0], p, init=start, weights=w)
+    masked = solve(D, ~hidden, bones, gt_lengths, p, init=start)
+    assert np.allclose(weighted.positions, masked.positions, atol=1e-8)
+    assert aje(weighted.positions, base.positions) > 1e-5  # and it did matter
+    with pytest.raises(ValueError, match="weights must be non-negative"):
+        solve(D, None, bones, weights=-np.ones(gt.shape[:2]))
+
+
+def test_never_observed_joint_and_empty_window(clip):
+    gt, bones = clip
+    observed = np.ones(gt.shape[:2], dtype=bool)
+    observed[:, 26] = False  # a joint the sensor never saw
+    res = solve(gt, observed, bones)
+    assert np.isfinite(res.positions).all()
+    touching = (bones == 26).any(axis=1)
+    assert np.isnan(res.bone_lengths[touching]).all()
+    assert aje(res.positions[:, observed[0]], gt[:, observed[0]]) < 0.003
+    with pytest.raises(ValueError, match="no observed joint"):
+        solve(gt, np.zeros(gt.shape[:2], dtype=bool), bones)

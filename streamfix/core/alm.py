@@ -261,6 +261,8 @@ def solve(
     params: SolverParams = SolverParams(),
     init: np.ndarray | None = None,
     state: SolverState | None = None,
+    *,
+    weights: np.ndarray | None = None,
 ) -> SolverResult:
     """Recover a motion with Algorithm 1 of Yang et al. (2019).
 
@@ -270,6 +272,10 @@ def solve(
     ``(T, J, 3)`` replaces the default initialisation of A and N (e.g. a learned
     prior's prediction). state: a previous :class:`SolverState` of the same length
     (typically ``prev.state.shifted(hop)``) to warm-start from; wins over ``init``.
+    weights: optional ``(T, J)`` or ``(T, J, 3)`` non-negative multipliers of lam per
+    entry (weighted l1 on E): below 1 makes an entry cheaper to declare an outlier
+    (e.g. 0.5 for Kinect *inferred* joints), 0 leaves it unpenalised. None = all 1.
+    Raises ValueError when no joint is observed (there is nothing to recover from).
     """
     D, observed, bones = _validate(D, observed, bones)
     n_frames, n_joints, _ = D.shape
@@ -277,7 +283,16 @@ def solve(
     use_iso = p.mode in ("yang", "li") and len(bones) > 0 and p.gamma > 0
     use_wav = p.mode == "yang"
     W = TemporalWavelet(n_frames, p.wavelet, p.level) if use_wav else None
+    if not observed.any():
+        raise ValueError(f"no observed joint in the {n_frames}-frame window: nothing to solve")
     lam = p.lam if p.lam is not None else 1.0 / np.sqrt(n_frames)
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape == (n_frames, n_joints):
+            weights = weights[..., None]
+        if weights.shape not in ((n_frames, n_joints, 1), D.shape) or not (weights >= 0).all():
+            raise ValueError(f"weights must be non-negative, (T, J) = {(n_frames, n_joints)} or (T, J, 3), got {weights.shape}")
+        lam = lam * weights  # lam_ij: per-entry threshold of Eq. (12)
 
     if bone_lengths is None:
         bone_lengths = estimate_bone_lengths(D, bones, observed) if len(bones) else np.zeros(0)
