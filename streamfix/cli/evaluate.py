@@ -79,6 +79,17 @@ def print_table(records: list[dict], out=None) -> None:
                 print(f"  {m:<12}" + "".join(f"{c:>10}" for c in row), file=out)
 
 
+def _accepts_methods(fn) -> bool:
+    """Protocol runners may predate the ``methods`` keyword (ARCHITECTURE.md contract)."""
+    import inspect
+
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return True
+    return "methods" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
 def run(args: argparse.Namespace) -> int:
     from ..evaluation.registry import ALL_METHODS, discover_protocols, is_kinect_file
 
@@ -104,8 +115,15 @@ def run(args: argparse.Namespace) -> int:
     records: list[dict] = []
     try:
         for name, files in plan.items():
-            records += protocols[name](files, rate_hz=args.rate, levels=args.levels, seed=args.seed,
-                                       methods=methods)
+            fn = protocols[name]
+            kwargs: dict = {"seed": args.seed}  # unset options keep each protocol's own defaults
+            if args.rate is not None:
+                kwargs["rate_hz"] = args.rate
+            if args.levels is not None:
+                kwargs["levels"] = args.levels
+            if _accepts_methods(fn):
+                kwargs["methods"] = methods
+            records += fn(files, **kwargs)
     except (OSError, ValueError) as exc:
         print(f"streamfix eval: {exc}", file=sys.stderr)
         return 1
