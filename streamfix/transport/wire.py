@@ -319,13 +319,19 @@ def _blob(body: dict, key: str, bid: int, n_bytes: int, what: str) -> bytes:
     )
 
 
-def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> SkeletonFrame:
+def _stream_of(msg: dict, expected_type: str) -> str:
+    """Check the message type and return its valid stream id."""
     mtype = _field(msg, "type", str, "a string")
-    if mtype != "frame":
-        raise WireError(f"expected message type 'frame', got {mtype!r}", "type")
+    if mtype != expected_type:
+        raise WireError(f"expected message type {expected_type!r}, got {mtype!r}", "type")
     stream = _field(msg, "stream", str, "a string")
     if not _STREAM_RE.match(stream):
         raise WireError(f"stream id {stream!r} is not 1-64 characters of [A-Za-z0-9_.:-]", "field")
+    return stream
+
+
+def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> SkeletonFrame:
+    stream = _stream_of(msg, "frame")
     seq = _field(msg, "seq", int, "a non-negative integer")
     if seq < 0:
         raise WireError(f"field 'seq' is {seq}, expected a non-negative integer", "field")
@@ -410,12 +416,7 @@ def decode_frame(payload: bytes, skeletons: Mapping[str, Skeleton] | None = None
 
 
 def _skeleton_from_map(msg: dict) -> SkeletonMessage:
-    mtype = _field(msg, "type", str, "a string")
-    if mtype != "skeleton":
-        raise WireError(f"expected message type 'skeleton', got {mtype!r}", "type")
-    stream = _field(msg, "stream", str, "a string")
-    if not _STREAM_RE.match(stream):
-        raise WireError(f"stream id {stream!r} is not 1-64 characters of [A-Za-z0-9_.:-]", "field")
+    stream = _stream_of(msg, "skeleton")
     name = _field(msg, "skeleton", str, "a string")
     names = _field(msg, "joint_names", list, "an array of strings")
     if not all(isinstance(n, str) for n in names):
