@@ -147,3 +147,12 @@ def test_fixed_decimals(shared_data, tmp_path):
     np.testing.assert_allclose(r.positions, m.positions, atol=0.5e-4 + 1e-12, equal_nan=True)
     np.testing.assert_array_equal(r.confidence, m.confidence)
     assert (tmp_path / "d.csv").stat().st_size < (shared_data / "kinect_v2" / "Ges02_balancinghands.csv").stat().st_size
+
+
+def test_header_line_is_skipped_but_later_text_is_an_error(shared_data, tmp_path):
+    lines = [_good_line(shared_data, k) for k in range(4)]
+    header = "Timestamp," + ",".join(f"{n}_{c}" for n in KINECT_V2.joint_names for c in ("X", "Y", "Z", "State"))
+    m = read_kinect_csv(_write(tmp_path, [header] + lines, "h.csv"))
+    assert m.n_frames == 4
+    with pytest.raises(MotionFileError, match=r"h2\.csv line 3: timestamp is not a number: 'Timestamp'"):
+        read_kinect_csv(_write(tmp_path, lines[:2] + [header] + lines[2:], "h2.csv"))

@@ -14,7 +14,8 @@ The frame rate is estimated from the timestamps as 1 / median(dt) (robust to the
 dropped frames that show as 2x gaps); a one-frame file falls back to the Kinect v2's
 nominal 30 Hz. The writer writes the same layout (missing joints as ``0,0,0,0``), so
 ``read_kinect_csv(write_kinect_csv(m))`` reproduces ``m`` within print precision.
-Blank lines and lines starting with ``#`` are skipped.
+Blank lines, lines starting with ``#`` and a column-name header line (first field
+starting with a letter, before any frame) are skipped.
 """
 from __future__ import annotations
 
@@ -132,6 +133,8 @@ def read_kinect_csv(path: str | Path) -> Motion:
         s = line.strip()
         if not s or s.startswith("#"):
             continue
+        if not rows and s[0].isalpha():
+            continue  # a column-name header line (e.g. "Timestamp,SpineBase_X,...")
         rows.append((lineno, _fields(s)))
     if not rows:
         raise MotionFileError(path, "no frames (empty file)")
@@ -149,7 +152,7 @@ def read_kinect_csv(path: str | Path) -> Motion:
     else:
         rate = KINECT_NOMINAL_HZ
     timestamps = ticks.astype(np.float64) / TICKS_PER_SECOND
-    meta = {"source": str(path), "format": "kinect_v2_csv", "ticks": ticks}
+    meta = {"source": str(path), "format": "kinect_v2_csv"}
     return Motion(pos, conf, timestamps, rate, KINECT_V2, meta=meta)
 
 
