@@ -52,7 +52,7 @@ from ..motion import Motion
 from ..skeletons import Skeleton, register_skeleton
 from .errors import MotionFileError
 
-__all__ = ["read_bvh", "BvhJoint", "parse_bvh_hierarchy", "bvh_forward_kinematics", "CMU_SCALE", "choose_bvh_scale"]
+__all__ = ["read_bvh", "BvhJoint", "parse_bvh_hierarchy", "bvh_forward_kinematics", "CMU_SCALE", "choose_bvh_scale", "axis_rotations"]
 
 CMU_SCALE = 0.056444  # CMU mocap units -> metres (data README)
 _POSITION_CHANNELS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
@@ -177,8 +177,8 @@ def parse_bvh_hierarchy(path: str | Path, lines: list[str]) -> tuple[list[BvhJoi
     return nodes, ln - 1  # 0-based index of the MOTION line
 
 
-def _axis_rotations(axis: int, deg: np.ndarray) -> np.ndarray:
-    """(T,3,3) rotation matrices about x/y/z by ``deg`` degrees."""
+def axis_rotations(axis: int, deg: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) right-handed rotation matrices about axis 0/1/2 (x/y/z) by ``deg`` degrees."""
     a = np.deg2rad(deg)
     c, s = np.cos(a), np.sin(a)
     R = np.zeros(deg.shape + (3, 3))
@@ -209,7 +209,7 @@ def bvh_forward_kinematics(nodes: list[BvhJoint], values: np.ndarray) -> np.ndar
             if ch in _POSITION_CHANNELS:
                 t[:, _POSITION_CHANNELS[ch]] += col
             else:
-                Ra = _axis_rotations(_ROTATION_CHANNELS[ch], col)
+                Ra = axis_rotations(_ROTATION_CHANNELS[ch], col)
                 R = Ra if R is None else R @ Ra
         if node.parent < 0:
             G[k] = eye if R is None else R

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..io.bvh import axis_rotations
 from ..motion import Motion
 from ..skeletons import KINECT_V2
 
@@ -63,19 +64,6 @@ def rest_directions() -> dict[int, np.ndarray]:
     return {K(n): v for n, v in d.items()}
 
 
-def _rot(axis: int, deg: np.ndarray) -> np.ndarray:
-    a = np.deg2rad(deg)
-    c, s = np.cos(a), np.sin(a)
-    R = np.zeros(a.shape + (3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    R[..., axis, axis] = 1.0
-    R[..., i, i] = c
-    R[..., j, j] = c
-    R[..., i, j] = -s
-    R[..., j, i] = s
-    return R
-
-
 def _side(j: int) -> float:
     return -1.0 if "Right" in KINECT_V2.joint_names[j] else 1.0
 
@@ -96,9 +84,9 @@ def pose_body(angles: dict[str, np.ndarray], root_pos: np.ndarray, root_yaw: np.
     for j in TOPO_ORDER:
         flex, abd, tw = np.asarray(angles.get(KINECT_V2.joint_names[j], zero), dtype=np.float64).T
         s = _side(j)
-        R = _rot(2, s * abd) @ _rot(0, -flex) @ _rot(1, s * tw)
+        R = axis_rotations(2, s * abd) @ axis_rotations(0, -flex) @ axis_rotations(1, s * tw)
         if j == 0:
-            G[j] = _rot(1, root_yaw) @ R
+            G[j] = axis_rotations(1, root_yaw) @ R
             X[j] = root_pos
         else:
             p = _PARENT[j]
