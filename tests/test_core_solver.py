@@ -17,6 +17,7 @@ from streamfix.core.isometry import (
 )
 from streamfix.core.wavelets import TemporalWavelet, detail_mask, wavelet_matrix
 from streamfix.io.bvh import read_bvh
+from streamfix.skeletons import MEDIAPIPE_POSE
 
 
 # --------------------------------------------------------------------------- fixtures
@@ -112,9 +113,17 @@ def test_jacobian_matches_finite_differences():
         assert np.allclose(fd, jac[:, :, k], atol=1e-6)
 
 
-@pytest.mark.parametrize("rho2,gamma", [(0.05, 100.0), (3.0, 1.0)])
-def test_batched_gauss_newton_matches_dense_reference(rho2, gamma):
-    N, bones, lengths = _chain(4, 1)
+def _mediapipe(n_frames: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A bone graph with cycles (MediaPipe's connection list) and random lengths."""
+    rng = np.random.default_rng(seed)
+    bones = MEDIAPIPE_POSE.bone_array
+    pos = rng.standard_normal((n_frames, MEDIAPIPE_POSE.n_joints, 3)) * 0.3
+    return pos, bones, rng.uniform(0.05, 0.4, len(bones))
+
+
+@pytest.mark.parametrize("rho2,gamma,case", [(0.05, 100.0, _chain), (3.0, 1.0, _chain), (0.05, 100.0, _mediapipe)])
+def test_batched_gauss_newton_matches_dense_reference(rho2, gamma, case):
+    N, bones, lengths = case(4, 1)
     rng = np.random.default_rng(2)
     A = N + 0.05 * rng.standard_normal(N.shape)
     Z2 = 0.1 * rng.standard_normal(N.shape)

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .interpolate import interpolate_linear
-from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
+from .isometry import estimate_bone_lengths, gauss_newton_step
 from .wavelets import TemporalWavelet
 
 __all__ = ["SolverParams", "SolverState", "SolverResult", "solve"]
@@ -358,7 +358,6 @@ def solve(
         shrink_mask = W.detail[:, None, None]  # mu applies to detail rows only
     else:
         shrink_mask = None
-    inc = incidence_matrix(bones[np.isfinite(bone_lengths)], n_joints) if use_iso else None
     iso_bones = bones[np.isfinite(bone_lengths)] if use_iso else bones
     iso_lengths = bone_lengths[np.isfinite(bone_lengths)] if use_iso else bone_lengths
 
@@ -372,9 +371,9 @@ def solve(
         if use_iso:
             for _ in range(p.gn_steps):
                 if p.center == "channel":  # bone vectors need absolute positions
-                    N = gauss_newton_step(N + offset, A + offset, Z2, rho2, p.gamma, iso_bones, iso_lengths, inc) - offset
+                    N = gauss_newton_step(N + offset, A + offset, Z2, rho2, p.gamma, iso_bones, iso_lengths) - offset
                 else:  # a global offset cancels in n_i - n_j
-                    N = gauss_newton_step(N, A, Z2, rho2, p.gamma, iso_bones, iso_lengths, inc)
+                    N = gauss_newton_step(N, A, Z2, rho2, p.gamma, iso_bones, iso_lengths)
         # line 6, Eq. (11): C^{k+1} = S_{mu/rho3}(W A^k - Z3/rho3)
         if use_wav:
             V = WA - Z3 / rho3
