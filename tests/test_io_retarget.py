@@ -76,3 +76,18 @@ def test_unknown_skeleton_names_what_is_missing(shared_data):
     kin = bvh_to_kinect_v2(m)
     with pytest.raises(ValueError, match="no joint for SpineBase"):
         bvh_to_kinect_v2(kin)
+
+
+def test_reproportion_to_kinect_lengths(shared_data, kinect_reference):
+    src = read_bvh(shared_data / "xia_bvh" / "old_13_000.bvh")
+    target = np.median([_median_lengths(r) for r in kinect_reference], axis=0)
+    plain = bvh_to_kinect_v2(src)
+    m = bvh_to_kinect_v2(src, bone_lengths=target)
+    b = K.bone_array
+    L = np.linalg.norm(m.positions[:, b[:, 0]] - m.positions[:, b[:, 1]], axis=2)
+    np.testing.assert_allclose(L, np.broadcast_to(target, L.shape), atol=1e-9)
+    d = lambda x: (x[:, b[:, 1]] - x[:, b[:, 0]]) / np.linalg.norm(x[:, b[:, 1]] - x[:, b[:, 0]], axis=2, keepdims=True)
+    np.testing.assert_allclose(d(m.positions), d(plain.positions), atol=1e-9)
+    np.testing.assert_array_equal(m.positions[:, 0], plain.positions[:, 0])
+    with pytest.raises(ValueError, match=r"bone_lengths must be \(24,\)"):
+        bvh_to_kinect_v2(src, bone_lengths=target[:5])

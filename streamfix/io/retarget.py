@@ -44,7 +44,8 @@ Coordinates are kept (BVH y-up, metres) unless ``to_camera=True``: then the moti
 is turned 180 deg about y so that a subject facing +z (BVH convention) faces the
 sensor, and shifted so that the first frame's SpineBase sits at
 ``CAMERA_SPINE_BASE`` = (0, -0.35, 2.7) m, the median SpineBase of the standing
-Kinect v2 recordings. Bone lengths are the BVH subject's, not rescaled.
+Kinect v2 recordings. Bone lengths are the BVH subject's unless ``bone_lengths`` asks
+for others (directions kept, lengths set, outwards from SpineBase).
 """
 from __future__ import annotations
 
@@ -120,8 +121,33 @@ def _chain_point(X: np.ndarray, chain: list[int], fraction: float) -> np.ndarray
     return (1 - s) * X[:, chain[k]] + s * X[:, chain[k + 1]]
 
 
-def bvh_to_kinect_v2(motion: Motion, *, to_camera: bool = False) -> Motion:
-    """Map a CMU-family BVH motion onto the 25 ``KINECT_V2`` joints (see the module table)."""
+def _reproportion(X: np.ndarray, bone_lengths: np.ndarray) -> np.ndarray:
+    """Keep every bone's direction, set its length: walk the Kinect tree from SpineBase."""
+    L = np.asarray(bone_lengths, dtype=np.float64)
+    if L.shape != (KINECT_V2.n_bones,):
+        raise ValueError(f"bone_lengths must be ({KINECT_V2.n_bones},) metres in KINECT_V2.bones order, got {L.shape}")
+    out = X.copy()
+    done = {0}
+    pending = list(enumerate(KINECT_V2.bones))
+    while pending:
+        rest = []
+        for k, (p, c) in pending:
+            if p in done:
+                out[:, c] = out[:, p] + L[k] * _unit(X[:, c] - X[:, p])
+                done.add(c)
+            else:
+                rest.append((k, (p, c)))
+        pending = rest
+    return out
+
+
+def bvh_to_kinect_v2(motion: Motion, *, to_camera: bool = False, bone_lengths: np.ndarray | None = None) -> Motion:
+    """Map a CMU-family BVH motion onto the 25 ``KINECT_V2`` joints (see the module table).
+
+    ``bone_lengths`` (24,) m in ``KINECT_V2.bones`` order, if given, re-proportions the
+    result: every bone keeps its direction per frame and gets that length (e.g. a real
+    Kinect subject's medians), built outwards from SpineBase.
+    """
     skel = motion.skeleton
     X = motion.positions
     T = motion.n_frames
@@ -176,6 +202,8 @@ def bvh_to_kinect_v2(motion: Motion, *, to_camera: bool = False) -> Motion:
             thumb_end = wrist + THUMB_LENGTH * hl * _unit(_unit(h) + forward)
         out[:, K(f"Thumb{side}")] = thumb_end
 
+    if bone_lengths is not None:
+        out = _reproportion(out, bone_lengths)
     if to_camera:
         flip = np.array([-1.0, 1.0, -1.0])  # 180 deg about y
         out = out * flip
