@@ -218,6 +218,8 @@ def build_vectors() -> list[dict]:
     invalid("bad_missing_seq", mutated(lambda m: m.pop("seq")), "field", "required key 'seq' missing")
     invalid("bad_seq_type", mutated(lambda m: m.update(seq="7")), "field", "'seq' is a string")
     invalid("bad_negative_seq", mutated(lambda m: m.update(seq=-1)), "field", "'seq' is negative")
+    invalid("bad_time_range", mutated(lambda m: m.update(t_sensor_ns=2**63)), "field",
+            "t_sensor_ns 2^63 (a uint64) does not fit the signed 64-bit range of times")
     invalid("bad_pos_not_bin", mutated(lambda m: m["bodies"][0].update(pos=[0.0] * 75)), "field",
             "positions sent as an array of floats instead of a float32 blob")
     invalid("bad_duplicate_body",

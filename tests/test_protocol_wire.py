@@ -235,5 +235,8 @@ def test_encoder_names_unencodable_fields():
         wire.encode_frame(SkeletonFrame("a/b", 0, 0, "kinect_v2", []))
     with pytest.raises(WireError, match="does not fit an unsigned 64-bit integer"):
         wire.encode_frame(SkeletonFrame("a", 2**64, 0, "kinect_v2", []))
-    with pytest.raises(WireError, match="cannot encode frame of stream 'a' seq 1"):
+    with pytest.raises(WireError, match="t_sensor_ns 1180591620717411303424 does not fit a signed 64-bit"):
         wire.encode_frame(SkeletonFrame("a", 1, 2**70, "kinect_v2", []))
+    J = KINECT_V2.n_joints
+    with pytest.raises(WireError, match="cannot encode frame of stream 'a' seq 1"):
+        wire.encode_frame(SkeletonFrame("a", 1, 0, "kinect_v2", [BodyFrame(2**70, np.zeros((J, 3)), np.ones(J))]))

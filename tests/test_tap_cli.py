@@ -64,3 +64,33 @@ def test_tap_topic_filters_and_times_out_with_exit_2():
     lines = proc.stdout.splitlines()
     assert len(lines) == 3 and all(line.startswith("sf/live/kinect0 seq=") for line in lines)
     assert all(" 1:24obs/1rec " in line for line in lines)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_tap_bind_pull_loses_nothing_sent_before_it_started():
+    """SPEC section 1: a connecting PUSH queues frames until the PULL side is up."""
+    import zmq
+
+    from streamfix.transport.zmq_io import FramePublisher
+
+    endpoint = f"tcp://127.0.0.1:{_free_port()}"
+    lp = LoopbackPublisher(kind="raw")  # only for its deterministic frames
+    lp.pub.close()
+    push = FramePublisher(endpoint, bind=False, socket_type=zmq.PUSH)
+    try:
+        push.announce("kinect0", KINECT_V2, 30.0)
+        for seq in range(20):  # all sent before anybody listens
+            push.publish("raw", lp.frame(seq))
+        proc = _tap(endpoint, "--bind", "--topic", "raw", "--count", "20", "--json", "--timeout", "20")
+    finally:
+        push.socket.setsockopt(zmq.LINGER, 0)
+        push.close()
+    assert proc.returncode == 0, proc.stderr
+    assert [json.loads(line)["seq"] for line in proc.stdout.splitlines()] == list(range(20))

@@ -53,6 +53,13 @@ def _int(m: dict, key: str, minimum: int | None = None) -> int:
     return v
 
 
+def _int64(m: dict, key: str) -> int:
+    v = _int(m, key)
+    if not -(2**63) <= v < 2**63:
+        raise Rejected("field", f"{key!r} is {v}, outside the signed 64-bit range")
+    return v
+
+
 def _str(m: dict, key: str) -> str:
     v = m.get(key)
     if not isinstance(v, str):
@@ -102,8 +109,8 @@ def decode(payload: bytes, skeletons: dict[str, dict]) -> dict:
     if not STREAM_RE.match(stream):
         raise Rejected("field", f"bad stream id {stream!r}")
     seq = _int(m, "seq", 0)
-    t_sensor = _int(m, "t_sensor_ns")
-    t_pub = _int(m, "t_publish_ns")
+    t_sensor = _int64(m, "t_sensor_ns")
+    t_pub = _int64(m, "t_publish_ns")
     name = _str(m, "skeleton")
     joints = _int(m, "joints", 0)
     filled = m.get("filled")
@@ -126,7 +133,7 @@ def decode(payload: bytes, skeletons: dict[str, dict]) -> dict:
     for b in bodies:
         if not isinstance(b, dict):
             raise Rejected("field", "body is not a map")
-        bid = _int(b, "id")
+        bid = _int64(b, "id")
         if bid in ids:
             raise Rejected("field", f"duplicate body id {bid}")
         ids.add(bid)
@@ -184,9 +191,7 @@ def decode_skeleton(m: dict, skeletons: dict[str, dict]) -> dict:
         raise Rejected("field", "'rate_hz' missing or not a positive number")
     if m.get("units") != "m":
         raise Rejected("field", "'units' is not 'm'")
-    t_pub = m.get("t_publish_ns", 0)
-    if not isinstance(t_pub, int):
-        raise Rejected("field", "'t_publish_ns' not an integer")
+    t_pub = _int64(m, "t_publish_ns") if "t_publish_ns" in m else 0
     msg = {"type": "skeleton", "stream": stream, "skeleton": name, "joint_names": names,
            "bones": bones, "rate_hz": float(rate), "units": "m", "t_publish_ns": t_pub}
     skeletons[name] = msg

@@ -203,6 +203,9 @@ def encode_frame(frame: SkeletonFrame, *, publish_time_ns: int | None = None) ->
     }
     if not 0 <= msg["seq"] < 2**64:
         raise WireError(f"seq {msg['seq']} does not fit an unsigned 64-bit integer", "field")
+    for key in ("t_sensor_ns", "t_publish_ns"):
+        if not _I64_MIN <= msg[key] <= _I64_MAX:
+            raise WireError(f"{key} {msg[key]} does not fit a signed 64-bit integer", "field")
     try:
         return msgpack.packb(msg, use_bin_type=True)
     except (OverflowError, TypeError, ValueError) as exc:
@@ -274,6 +277,17 @@ def _field(msg: dict, key: str, types, what: str):
     return value
 
 
+_I64_MIN, _I64_MAX = -(2**63), 2**63 - 1
+
+
+def _int64(msg: dict, key: str) -> int:
+    """A required signed 64-bit integer field (times in ns)."""
+    value = _field(msg, key, int, "an integer (ns)")
+    if not _I64_MIN <= value <= _I64_MAX:
+        raise WireError(f"field {key!r} is {value}, outside the signed 64-bit range", "field")
+    return value
+
+
 def _mp_type(value) -> str:
     """The msgpack family of a decoded value, for error messages."""
     for t, name in ((bool, "boolean"), (int, "integer"), (float, "float"), (str, "string"),
@@ -335,8 +349,8 @@ def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> Skel
     seq = _field(msg, "seq", int, "a non-negative integer")
     if seq < 0:
         raise WireError(f"field 'seq' is {seq}, expected a non-negative integer", "field")
-    t_sensor = _field(msg, "t_sensor_ns", int, "an integer (ns)")
-    t_pub = _field(msg, "t_publish_ns", int, "an integer (ns)")
+    t_sensor = _int64(msg, "t_sensor_ns")
+    t_pub = _int64(msg, "t_publish_ns")
     name = _field(msg, "skeleton", str, "a string")
     n_joints = _field(msg, "joints", int, "a non-negative integer")
     filled = _field(msg, "filled", bool, "a boolean")
@@ -357,6 +371,8 @@ def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> Skel
         bid = b.get("id")
         if not isinstance(bid, int) or isinstance(bid, bool):
             raise WireError(f"body {i}: field 'id' is missing or not an integer: {bid!r:.40}", "field")
+        if not _I64_MIN <= bid <= _I64_MAX:
+            raise WireError(f"body {i}: id {bid} does not fit a signed 64-bit integer", "field")
         if bid in seen:
             raise WireError(f"body {i}: duplicate body id {bid}", "field")
         seen.add(bid)
@@ -433,9 +449,7 @@ def _skeleton_from_map(msg: dict) -> SkeletonMessage:
     units = msg.get("units", "m")
     if units != "m":
         raise WireError(f"field 'units' is {units!r}, expected 'm'", "field")
-    t_pub = msg.get("t_publish_ns", 0)
-    if not isinstance(t_pub, int):
-        raise WireError(f"field 't_publish_ns' is {t_pub!r:.40}, expected an integer (ns)", "field")
+    t_pub = _int64(msg, "t_publish_ns") if "t_publish_ns" in msg else 0
     try:
         skeleton = Skeleton(name, tuple(names), tuple(tuple(b) for b in bones))
     except ValueError as exc:
