@@ -136,7 +136,8 @@ class EngineConfig:
     level 1 (None = half of max_iterations, or 10 if that is None). max_hop: hop at the
     deepest level (None = W // 2). max_pending_windows: queue length beyond which new
     windows are skipped. max_clean_delay_s: how long beyond the lookahead a frame may
-    wait for a stalled window before it is abandoned. recover_after: healthy windows
+    wait for a stalled window before it is abandoned (at most ``8 W`` frames).
+    recover_after: healthy windows
     before recovering a level. body_timeout_s: grace period of an absent body.
     fill_drops: synthesise dropped frames. drop_gap_factor: a timestamp gap above this
     many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
@@ -452,7 +453,8 @@ class StreamEngine:
             None if self.cfg.bone_lengths is None else np.asarray(self.cfg.bone_lengths, dtype=np.float64)
         )
         self.period_ns = 1e9 / self.cfg.rate_hz
-        self._backlog = int(round(self.cfg.max_clean_delay_s * self.cfg.rate_hz))
+        # frames a stalled window may hold back (bounded: it sizes the per-body buffers)
+        self._backlog = int(min(round(self.cfg.max_clean_delay_s * self.cfg.rate_hz), 8 * self.cfg.window))
         self._timeout = max(1, int(round(self.cfg.body_timeout_s * self.cfg.rate_hz)))
         self.streams: dict[str, _Stream] = {}
         threaded = self.cfg.threaded if threaded is None else bool(threaded)
@@ -894,6 +896,7 @@ class StreamEngine:
         """Blend finished windows at the head of the body's queue (in order)."""
         while body.jobs and body.jobs[0].status != "pending":
             job = body.jobs.popleft()
+            prev_end = body.last_processed_end
             body.last_processed_end = max(body.last_processed_end, job.end)
             if job.status == "done":
                 self._last_solve_s = job.solve_s
@@ -906,13 +909,19 @@ class StreamEngine:
                 self._last_iterations = job.n_iter
                 if not job.converged:
                     self.counters["solver_not_converged"] += 1
-                self._blend(body, job)
+                self._blend(body, job, prev_end)
                 if self.cfg.live_anchor and job.end == body.count and job.result_pos is not None:
                     body.live_path.anchor(job.result_pos[-3:])
 
-    def _blend(self, body: _Body, job: _Job) -> None:
-        """Overlap-add: fold the window's solution into its frames not yet emitted."""
-        lo = max(job.start, body.final_upto)
+    def _blend(self, body: _Body, job: _Job, prev_end: int) -> None:
+        """Overlap-add: fold the window's solution into the frames it is due to.
+
+        Window ``e`` contributes to frame ``n`` iff ``n < e <= n + L + 1`` or, when the hop
+        was degraded beyond the lookahead, it is the first window covering ``n``
+        (``prev_end <= n``). This makes each frame's value independent of when its
+        windows finished (threaded and synchronous modes agree).
+        """
+        lo = max(job.start, body.final_upto, min(job.end - self.cfg.lookahead - 1, prev_end))
         if lo >= job.end:
             return
         T = job.end - job.start
