@@ -58,7 +58,7 @@ def test_wavelet_is_orthogonal_for_any_length(n_frames, wavelet):
     assert np.abs(W @ W.T - eye).max() < 1e-12
 
 
-@pytest.mark.parametrize("n_frames", [37, 600])  # dense path and pywt path
+@pytest.mark.parametrize("n_frames", [37, 600, 1030])  # dense, sparse and pywt paths
 def test_wavelet_operator_matches_matrix_and_inverts(n_frames):
     rng = np.random.default_rng(0)
     x = rng.standard_normal((n_frames, 7, 3))

@@ -30,12 +30,15 @@ from functools import lru_cache
 
 import numpy as np
 import pywt
+from scipy.sparse import csr_matrix
 
 __all__ = ["TemporalWavelet", "wavelet_matrix", "detail_mask"]
 
-# Below this many frames W is applied as a cached dense matrix (one BLAS call);
-# above it, through pywt (O(T) memory). Both give the same orthogonal operator.
-_DENSE_MAX_T = 512
+# How W is applied (all give the same orthogonal operator): up to _DENSE_MAX_T frames
+# as a cached dense matrix (one BLAS call), up to _SPARSE_MAX_T as a cached CSR matrix
+# (~40 non-zeros per row for db10, level 2), beyond that through pywt (O(T) memory).
+_DENSE_MAX_T = 256
+_SPARSE_MAX_T = 1024
 
 
 def _split(n_frames: int, level: int) -> tuple[int, int]:
@@ -80,6 +83,13 @@ def _dense(n_frames: int, wavelet: str, level: int) -> np.ndarray:
     return w
 
 
+@lru_cache(maxsize=16)
+def _sparse(n_frames: int, wavelet: str, level: int) -> tuple[csr_matrix, csr_matrix]:
+    w = _forward_pywt(np.eye(n_frames), wavelet, level)
+    w[np.abs(w) < 1e-15] = 0.0  # round-off of exact zeros outside the filter support
+    return csr_matrix(w), csr_matrix(w.T)
+
+
 def wavelet_matrix(n_frames: int, wavelet: str = "db10", level: int = 2) -> np.ndarray:
     """The ``(T, T)`` orthogonal matrix W (read-only, cached). Rows = coefficients."""
     _check_level(n_frames, level)
@@ -112,6 +122,7 @@ class TemporalWavelet:
         self.level = int(level)
         self.detail = detail_mask(self.n_frames, self.level)
         self._w = wavelet_matrix(self.n_frames, self.wavelet, self.level) if self.n_frames <= _DENSE_MAX_T else None
+        self._ws = _sparse(self.n_frames, self.wavelet, self.level) if self._w is None and self.n_frames <= _SPARSE_MAX_T else None
 
     def _check(self, x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=np.float64)
@@ -124,6 +135,8 @@ class TemporalWavelet:
         x = self._check(x)
         if self._w is not None:
             return (self._w @ x.reshape(self.n_frames, -1)).reshape(x.shape)
+        if self._ws is not None:
+            return (self._ws[0] @ x.reshape(self.n_frames, -1)).reshape(x.shape)
         return _forward_pywt(x, self.wavelet, self.level)
 
     def inverse(self, c: np.ndarray) -> np.ndarray:
@@ -131,4 +144,6 @@ class TemporalWavelet:
         c = self._check(c)
         if self._w is not None:
             return (self._w.T @ c.reshape(self.n_frames, -1)).reshape(c.shape)
+        if self._ws is not None:
+            return (self._ws[1] @ c.reshape(self.n_frames, -1)).reshape(c.shape)
         return _inverse_pywt(c, self.wavelet, self.level)
