@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.core.alm import SolverParams, SolverResult, SolverState, solve
+from streamfix.core.alm import SolverParams, SolverResult, SolverState, default_rho0, solve
 from streamfix.core.isometry import (
     bone_lengths_per_frame,
     estimate_bone_lengths,
@@ -367,3 +367,17 @@ def test_never_observed_joint_and_empty_window(clip):
     assert aje(res.positions[:, observed[0]], gt[:, observed[0]]) < 0.003
     with pytest.raises(ValueError, match="no observed joint"):
         solve(gt, np.zeros(gt.shape[:2], dtype=bool), bones)
+
+
+def test_default_rho0_is_the_inexact_alm_rule(clip):
+    gt, bones = clip
+    rho0 = default_rho0(gt)
+    centred = gt - gt.mean(axis=(0, 1))
+    assert rho0 == pytest.approx(1.25 / np.linalg.norm(centred.transpose(0, 2, 1).reshape(-1, gt.shape[1]), 2))
+    D = corrupt(gt, 0.1, seed=10)
+    a = solve(D, None, bones, params=SolverParams(rho0=default_rho0(D) * 3.0))
+    b = solve(D, None, bones, params=SolverParams(rho0_scale=3.0))
+    assert np.array_equal(a.positions, b.positions)
+    # the paper's rho0 = 0.5 in metre units: E swallows the signal (module docstring)
+    bad = solve(D, None, bones, params=SolverParams(rho0=0.5, center="none"))
+    assert aje(bad.positions, gt) > 0.5

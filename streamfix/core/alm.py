@@ -47,7 +47,7 @@ from .interpolate import interpolate_linear
 from .isometry import estimate_bone_lengths, gauss_newton_step
 from .wavelets import TemporalWavelet
 
-__all__ = ["SolverParams", "SolverState", "SolverResult", "solve"]
+__all__ = ["SolverParams", "SolverState", "SolverResult", "solve", "default_rho0"]
 
 _MODES = ("yang", "li", "wang")
 _CENTERS = ("none", "global", "channel")
@@ -63,6 +63,9 @@ class SolverParams:
     mu: weight of ||W A||_1.
     eta: penalty growth per iteration, rho^{k+1} = eta rho^k (Algorithm 1, lines 15-17).
     rho0: initial penalty for rho1, rho2, rho3; None -> 1.25 / ||D||_2.
+    rho0_scale: multiplies rho0 (default rule or given). > 1 starts the continuation
+        later, which suits a good ``init`` (e.g. a learned prior's prediction) that
+        small penalties would otherwise wash out.
     wavelet, level: orthogonal Daubechies wavelet and decomposition depth (2).
     detail_only: apply the mu-shrinkage only to detail coefficients (not the coarse
         approximation), so the l1 term does not pull trajectories toward the origin.
@@ -90,6 +93,7 @@ class SolverParams:
     mu: float = 0.01
     eta: float = 1.3
     rho0: float | None = None
+    rho0_scale: float = 1.0
     wavelet: str = "db10"
     level: int = 2
     detail_only: bool = True
@@ -111,6 +115,8 @@ class SolverParams:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.lam is not None and not self.lam > 0:
             raise ValueError(f"lam must be > 0 or None, got {self.lam}")
+        if not self.rho0_scale > 0:
+            raise ValueError(f"rho0_scale must be > 0, got {self.rho0_scale}")
         if self.rho0 is not None and not self.rho0 > 0:
             raise ValueError(f"rho0 must be > 0 or None, got {self.rho0}")
         if self.max_iter < 1 or self.gn_steps < 1:
@@ -236,6 +242,30 @@ def _svt(y: np.ndarray, tau: float) -> np.ndarray:
     return _from_paper_layout(((m @ V) * shrink) @ V.T, n_frames)
 
 
+def _rho0_rule(Dc: np.ndarray) -> float:
+    """rho0 = 1.25 / ||D||_2 (inexact ALM, the paper's ref. [45]); D in the 3T x S layout."""
+    return 1.25 / max(float(np.linalg.norm(_paper_layout(Dc), 2)), 1e-12)
+
+
+def _center(D: np.ndarray, observed: np.ndarray, center: str) -> tuple[np.ndarray, np.ndarray]:
+    """(offset ``(1, 1|J, 3)`` in metres, centred D with 0 on unobserved entries)."""
+    obs3 = np.broadcast_to(observed[..., None], D.shape)
+    if center == "none" or not observed.any():
+        offset = np.zeros((1, 1, 3))
+    elif center == "global":
+        offset = np.nanmean(np.where(obs3, D, np.nan), axis=(0, 1), keepdims=True)
+    else:
+        cnt = observed.sum(axis=0)[None, :, None]
+        offset = np.where(obs3, D, 0.0).sum(axis=0, keepdims=True) / np.maximum(cnt, 1)
+    return offset, np.where(obs3, D - offset, 0.0)
+
+
+def default_rho0(D: np.ndarray, observed: np.ndarray | None = None, center: str = "global") -> float:
+    """The initial penalty :func:`solve` uses when ``SolverParams.rho0`` is None (1/m)."""
+    D, observed, _ = _validate(D, observed, np.zeros((0, 2), dtype=np.intp))
+    return _rho0_rule(_center(D, observed, center)[1])
+
+
 def _validate(D: np.ndarray, observed: np.ndarray | None, bones: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     D = np.asarray(D, dtype=np.float64)
     if D.ndim != 3 or D.shape[2] != 3:
@@ -303,19 +333,12 @@ def solve(
 
     # --- centring (Section "center" in SolverParams): D <- D - m on observed entries
     obs3 = np.broadcast_to(observed[..., None], D.shape)
-    if p.center == "none" or not observed.any():
-        offset = np.zeros((1, 1, 3))
-    elif p.center == "global":
-        offset = np.nanmean(np.where(obs3, D, np.nan), axis=(0, 1), keepdims=True)
-    else:
-        cnt = observed.sum(axis=0)[None, :, None]
-        offset = np.where(obs3, D, 0.0).sum(axis=0, keepdims=True) / np.maximum(cnt, 1)
-    Dc = np.where(obs3, D - offset, 0.0)  # unobserved entries: 0, never used as data
+    offset, Dc = _center(D, observed, p.center)  # unobserved entries of Dc: 0, never data
 
     d_fro = float(np.linalg.norm(Dc))
     if d_fro == 0.0:
         d_fro = 1.0
-    rho0 = p.rho0 if p.rho0 is not None else 1.25 / max(np.linalg.norm(_paper_layout(Dc), 2), 1e-12)
+    rho0 = (p.rho0 if p.rho0 is not None else _rho0_rule(Dc)) * p.rho0_scale
 
     # --- Algorithm 1, line 2: initialisation
     zeros = np.zeros_like(Dc)
