@@ -63,7 +63,7 @@ def test_tap_topic_filters_and_times_out_with_exit_2():
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert len(lines) == 3 and all(line.startswith("sf/live/kinect0 seq=") for line in lines)
-    assert all(" 1:24obs/1rec " in line for line in lines)
+    assert all(" bodies=2 1:23/1/1 4:23/1/1 " in line for line in lines)  # observed/recovered/missing
 
 
 def _free_port() -> int:

@@ -84,6 +84,9 @@ def frame_to_json(received) -> dict:
 
 
 def frame_to_line(received) -> str:
+    """``<topic> seq=.. t_sensor_ns=.. bodies=k <id>:<observed>/<recovered>/<missing> ... [filled]``."""
+    import numpy as np
+
     from ..transport.wire import SkeletonMessage
 
     msg = received.message
@@ -92,10 +95,10 @@ def frame_to_line(received) -> str:
         return (f"{topic} skeleton={msg.skeleton.name} joints={msg.skeleton.n_joints} "
                 f"bones={msg.skeleton.n_bones} rate_hz={msg.rate_hz:g}")
     parts = [f"{topic} seq={msg.seq} t_sensor_ns={msg.sensor_time_ns} bodies={len(msg.bodies)}"]
-    for b in msg.bodies:
-        missing = int((b.confidence <= 0).sum())
-        rec = 0 if b.recovered is None else int(b.recovered.sum())
-        parts.append(f"{b.body_id}:{len(b.confidence) - missing}obs/{rec}rec")
+    for b in msg.bodies:  # <id>:<observed>/<recovered>/<missing>, as the reference subscribers print
+        missing = np.isnan(b.positions).any(axis=1)
+        rec = np.zeros_like(missing) if b.recovered is None else b.recovered & ~missing
+        parts.append(f"{b.body_id}:{int((~missing & ~rec).sum())}/{int(rec.sum())}/{int(missing.sum())}")
     if msg.filled:
         parts.append("filled")
     if msg.publish_time_ns:
