@@ -381,3 +381,12 @@ def test_default_rho0_is_the_inexact_alm_rule(clip):
     # the paper's rho0 = 0.5 in metre units: E swallows the signal (module docstring)
     bad = solve(D, None, bones, params=SolverParams(rho0=0.5, center="none"))
     assert aje(bad.positions, gt) > 0.5
+
+
+@pytest.mark.parametrize("n_frames", [1, 2, 3, 5])
+def test_very_short_windows_are_solved(clip, n_frames):
+    gt, bones = clip
+    res = solve(gt[:n_frames], None, bones)
+    assert res.positions.shape == (n_frames, gt.shape[1], 3)
+    assert np.isfinite(res.positions).all()
+    assert aje(res.positions, gt[:n_frames]) < 0.01

@@ -85,7 +85,8 @@ class SolverParams:
     rho0_scale: multiplies rho0 (default rule or given). > 1 starts the continuation
         later, which suits a good ``init`` (e.g. a learned prior's prediction) that
         small penalties would otherwise wash out.
-    wavelet, level: orthogonal Daubechies wavelet and decomposition depth (2).
+    wavelet, level: orthogonal Daubechies wavelet and decomposition depth (2); windows
+        shorter than 2**level frames use the deepest level that fits (1 frame: none).
     detail_only: apply the mu-shrinkage only to detail coefficients (not the coarse
         approximation), so the l1 term does not pull trajectories toward the origin.
     center: subtract a mean of the observed data before solving and add it back:
@@ -332,8 +333,11 @@ def solve(
     n_frames, n_joints, _ = D.shape
     p = params
     use_iso = p.mode in ("yang", "li") and len(bones) > 0 and p.gamma > 0
-    use_wav = p.mode == "yang"
-    W = TemporalWavelet(n_frames, p.wavelet, p.level) if use_wav else None
+    # a window shorter than 2**level frames gets the deepest level it can hold (none for
+    # a single frame), so the stream's first frames can be solved too
+    level = min(p.level, int(np.floor(np.log2(max(n_frames, 1)))))
+    use_wav = p.mode == "yang" and level >= 1
+    W = TemporalWavelet(n_frames, p.wavelet, level) if use_wav else None
     if not observed.any():
         raise ValueError(f"no observed joint in the {n_frames}-frame window: nothing to solve")
     lam = p.lam if p.lam is not None else 1.0 / np.sqrt(n_frames)
