@@ -385,11 +385,10 @@ class _Body:
         # worker-owned warm-start state
         self.solver_state = None
         self.solver_state_end = -1
-        # bone lengths: input samples (both ends tracked) and clean samples
-        self.in_bones = np.full((300, B), np.nan)
-        self.in_bones_n = 0
+        # bone lengths sampled from the body's clean output (median -> clean_lengths)
         self.clean_bones = np.full((150, B), np.nan)
         self.clean_bones_n = 0
+        self.clean_lengths: np.ndarray | None = None
         self.prior_lengths = prior_lengths
         self.live_path: LivePath | None = None
 
@@ -698,7 +697,6 @@ class StreamEngine:
                 body.present[k] = True
                 body.absent = 0
                 body.last_present = n
-                self._sample_bones(body, pos, conf)
                 live_bodies.append(
                     BodyFrame(bid, y.copy(), conf.copy() if bf is not None else np.zeros(self.n_joints), rec.copy())
                 )
@@ -712,8 +710,6 @@ class StreamEngine:
                 body.present[k] = False
                 body.absent += 1
             body.count += 1
-            if body.clean_bones_n == 0 and self._fixed_lengths is None and body.count % self.cfg.hop == 0:
-                body.live_path.set_bone_lengths(self._robust_lengths(body))  # until clean history exists
             if body.count == body.next_end:
                 self._schedule(st, body, body.count)
                 body.next_end = body.count + self.hop
@@ -730,27 +726,20 @@ class StreamEngine:
                 self._begin_end(st, body)
         self._drain(st, out)
 
-    def _sample_bones(self, body: _Body, pos: np.ndarray, conf: np.ndarray) -> None:
-        if not len(self.bones):
-            return
-        a, b = self.bones[:, 0], self.bones[:, 1]
-        lengths = np.linalg.norm(pos[b] - pos[a], axis=1)
-        ok = (conf[a] >= 0.99) & (conf[b] >= 0.99)
-        body.in_bones[body.in_bones_n % len(body.in_bones)] = np.where(ok, lengths, np.nan)
-        body.in_bones_n += 1
-
     def _robust_lengths(self, body: _Body) -> np.ndarray | None:
-        """``(B,)`` median bone lengths (m) over the body's recent tracked input frames."""
+        """``(B,)`` bone lengths (m) for the solver and the live projection.
+
+        Fixed lengths if configured; else the median over the body's recent *clean*
+        output frames (robust: the window solver already removed the outliers, while a
+        median over raw corrupted input is biased by several cm); before enough clean
+        history exists, the lengths remembered for a re-identified body, else None
+        (the window solver estimates them from its window).
+        """
         if self._fixed_lengths is not None:
             return self._fixed_lengths
-        if not len(self.bones) or body.in_bones_n == 0:
-            return body.prior_lengths
-        rows = body.in_bones[: min(body.in_bones_n, len(body.in_bones))]
-        ok = np.isfinite(rows)
-        if not ok.any(axis=0).all():
-            return body.prior_lengths
-        est = np.nanmedian(rows, axis=0)
-        return est
+        if len(self.bones) and body.clean_bones_n >= min(self.cfg.window, len(body.clean_bones)):
+            return body.clean_lengths
+        return body.prior_lengths
 
     # ------------------------------------------------------------------ windows
     def _iterations(self) -> int | None:
@@ -980,8 +969,8 @@ class StreamEngine:
         body.clean_bones_n += 1
         if body.clean_bones_n % self.cfg.hop == 0:
             rows = body.clean_bones[: min(body.clean_bones_n, len(body.clean_bones))]
-            with np.errstate(all="ignore"):
-                est = np.nanmedian(rows, axis=0) if np.isfinite(rows).any() else None
+            est = np.median(rows, axis=0)  # clean output is finite
+            body.clean_lengths = est if np.isfinite(est).all() else None
             body.live_path.set_bone_lengths(est)
 
     def _emit(self, st: _Stream, out: list) -> None:
