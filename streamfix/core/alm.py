@@ -103,8 +103,12 @@ class SolverParams:
         previous window's final rho does not work: the thresholds lam/rho and 1/sum(rho)
         are then ~0, E absorbs the new frames' data unshrunk and A stays at its
         extrapolated guess (measured: AJE > 1 m after a few hops). Measured on CMU
-        131_01, 10 %, 128-frame windows, hop 16: skip 0/5/10/15 -> 29/24/20/15
-        iterations (cold: 30), new-frame AJE 7.3/8.3/9.1/15.4 mm (cold: 8.2 mm).
+        131_01, 10 % corruption, sliding windows, skip 0/5/8/10 (cold start):
+        120 Hz, 128 frames, hop 16: 29.5/24.5/21.3/19.6 (30.5) iterations, window AJE
+        4.1/4.3/3.7/3.6 (4.4) mm, AJE of the hop newest frames 7.0/7.7/7.7/7.8 (8.5) mm;
+        30 Hz, 64 frames, hop 8: 29.7/24.9/21.5/19.7 (30.7) iterations, window AJE
+        6.5/6.9/6.1/5.9 (6.5) mm, newest frames 7.7/8.9/9.2/9.5 (8.4) mm.
+        Skipping more (15+) costs accuracy on the new frames quickly.
     """
 
     mode: str = "yang"
@@ -121,7 +125,7 @@ class SolverParams:
     max_iter: int = 1000
     tol: float = 1e-4
     gn_steps: int = 1
-    warm_skip: int = 5
+    warm_skip: int = 8
 
     def __post_init__(self) -> None:
         if self.mode not in _MODES:
