@@ -31,15 +31,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="tcp://127.0.0.1:5556", help="PUB endpoint to bind (default %(default)s)")
     p.add_argument("--window", type=int, default=None, help="frames per solved window (engine default if omitted)")
     p.add_argument("--hop", type=int, default=None, help="frames between window solves (engine default if omitted)")
-    p.add_argument("--lookahead", type=float, default=None, metavar="SECONDS",
-                   help="lookahead of the clean output in seconds (engine default if omitted)")
+    p.add_argument("--lookahead", default=None, metavar="L",
+                   help="lookahead of the clean output: seconds (0.5 or 0.5s) or frames (15f); "
+                   "engine default (0.5 s) if omitted")
     p.add_argument("--metrics-port", type=int, default=None, metavar="P",
                    help="serve Prometheus metrics at http://127.0.0.1:P/metrics (0 = any free port; off if omitted)")
     p.add_argument("--metrics-host", default="127.0.0.1", help="address for the metrics HTTP server (default %(default)s)")
     p.add_argument("--status-interval", type=float, default=5.0, metavar="S",
                    help="seconds between one-line status reports on stderr (0 = only at exit; default %(default)s)")
-    p.add_argument("--rate", type=float, default=1.0, help="replay: speed-up over the recording's timing (default 1)")
+    p.add_argument("--rate", type=float, default=1.0, help="replay: speed-up over the recording's timing (default 1; 0 = as fast as possible)")
     p.add_argument("--loop", action="store_true", help="replay: loop the recording instead of exiting at its end")
+    p.add_argument("--start-delay", type=float, default=0.0, metavar="S",
+                   help="wait S seconds before reading input, so subscribers can connect first (default 0)")
     p.add_argument("--stream-id", default=None, help="stream id for stdin/replay input (default: stdin / file name)")
     p.add_argument("--sensor-rate", type=float, default=30.0,
                    help="frame rate (Hz) assumed for a stream no skeleton message describes (default %(default)s)")
@@ -58,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     )
     log = logging.getLogger("streamfix.service")
 
-    from ..service.engines import EngineOptions, engine_factory
+    from ..service.engines import EngineOptions, engine_factory, parse_lookahead
     from ..service.publisher import ServicePublisher
     from ..service.server import Service
     from ..service.sources import default_replay_file, open_source
@@ -70,15 +73,21 @@ def run(args: argparse.Namespace) -> int:
         except FileNotFoundError as exc:
             print(f"streamfix serve: {exc}", file=sys.stderr)
             return 2
-    if not args.rate > 0:
-        print(f"streamfix serve: --rate must be > 0, got {args.rate}", file=sys.stderr)
+    if not args.rate >= 0:
+        print(f"streamfix serve: --rate must be >= 0 (0 = as fast as possible), got {args.rate}", file=sys.stderr)
+        return 2
+    rate = float("inf") if args.rate == 0 else args.rate
+    try:
+        seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
+        options = EngineOptions(
+            window=args.window, hop=args.hop, lookahead=seconds, lookahead_frames=frames, threaded=not args.sync
+        )
+        make_engine = engine_factory(args.engine, options)
+    except ValueError as exc:
+        print(f"streamfix serve: bad engine settings: {exc}", file=sys.stderr)
         return 2
     try:
-        make_engine = engine_factory(
-            args.engine,
-            EngineOptions(window=args.window, hop=args.hop, lookahead=args.lookahead, threaded=not args.sync),
-        )
-        source = open_source(spec, rate=args.rate, loop=args.loop, stream_id=args.stream_id)
+        source = open_source(spec, rate=rate, loop=args.loop, stream_id=args.stream_id)
     except (FileNotFoundError, ValueError, RuntimeError, OSError) as exc:
         print(f"streamfix serve: cannot open source: {exc}", file=sys.stderr)
         return 2
@@ -102,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
             metrics_port=args.metrics_port,
             metrics_host=args.metrics_host,
             status_interval_s=args.status_interval,
+            start_delay_s=args.start_delay,
         )
     except OSError as exc:
         publisher.close()

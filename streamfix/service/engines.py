@@ -23,7 +23,7 @@ import numpy as np
 from ..frames import SkeletonFrame
 from ..skeletons import Skeleton
 
-__all__ = ["EngineOptions", "PassthroughEngine", "engine_factory", "ENGINES"]
+__all__ = ["EngineOptions", "PassthroughEngine", "engine_factory", "parse_lookahead", "ENGINES"]
 
 
 @dataclass
@@ -33,6 +33,7 @@ class EngineOptions:
     window: int | None = None       # frames per solved window
     hop: int | None = None          # frames between solves
     lookahead: float | None = None  # seconds of lookahead for the clean output
+    lookahead_frames: int | None = None  # or frames (wins if given)
     threaded: bool = True           # solve windows off the input thread
 
 
@@ -83,7 +84,9 @@ def _engine_config(rate_hz: float, options: EngineOptions):
         kwargs["window"] = int(options.window)
     if options.hop is not None:
         kwargs["hop"] = int(options.hop)
-    if options.lookahead is not None:
+    if options.lookahead_frames is not None:
+        kwargs["lookahead"] = int(options.lookahead_frames)
+    elif options.lookahead is not None:
         kwargs["lookahead_s"] = float(options.lookahead)
     if "threaded" in fields:
         kwargs["threaded"] = bool(options.threaded)
@@ -99,10 +102,29 @@ ENGINES: dict[str, Callable] = {
 }
 
 
+def parse_lookahead(text: str) -> tuple[float | None, int | None]:
+    """``--lookahead``: ``0.5`` or ``0.5s`` = seconds, ``15f`` = frames -> (seconds, frames)."""
+    t = text.strip().lower()
+    try:
+        if t.endswith("f"):
+            frames = int(t[:-1])
+            if frames < 0:
+                raise ValueError
+            return None, frames
+        seconds = float(t[:-1] if t.endswith("s") else t)
+        if not seconds >= 0:
+            raise ValueError
+        return seconds, None
+    except ValueError:
+        raise ValueError(f"--lookahead {text!r}: expected seconds (0.5 or 0.5s) or frames (15f), >= 0") from None
+
+
 def engine_factory(name: str, options: EngineOptions) -> Callable[[Skeleton, float], object]:
     """``factory(skeleton, rate_hz) -> engine`` for ``--engine NAME``."""
     try:
         make = ENGINES[name]
     except KeyError:
         raise ValueError(f"unknown engine {name!r}; expected one of {', '.join(ENGINES)}") from None
+    if name == "streamfix":
+        _engine_config(30.0, options)  # bad --window/--hop/--lookahead fail now, not on the first frame
     return lambda skeleton, rate_hz: make(skeleton, rate_hz, options)

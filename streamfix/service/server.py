@@ -157,12 +157,14 @@ class Service:
         status_stream=None,
         max_log_per_s: int = 20,
         flush_timeout_s: float = 10.0,
+        start_delay_s: float = 0.0,
     ) -> None:
         self.source = source
         self.publisher = publisher
         self.make_engine = make_engine
         self.default_rate_hz = float(default_rate_hz)
         self.flush_timeout_s = float(flush_timeout_s)
+        self.start_delay_s = float(start_delay_s)
         self.m = metrics or ServiceMetrics()
         self.metrics_server: MetricsServer | None = None
         if metrics_port is not None:
@@ -226,7 +228,10 @@ class Service:
         skeleton = self._skeletons.get(frame.skeleton) or get_skeleton(frame.skeleton)
         ann = self._announced.get(frame.stream_id)
         rate = rate_hint or (ann[1] if ann and ann[0].name == skeleton.name else None) or self.default_rate_hz
-        engine = self.make_engine(skeleton, float(rate))
+        try:
+            engine = self.make_engine(skeleton, float(rate))
+        except ValueError as exc:  # e.g. a window too short for this stream's rate
+            raise BadInput("invalid", f"stream {frame.stream_id!r}: cannot start an engine: {exc}") from None
         st = _Stream(frame.stream_id, skeleton, float(rate), engine)
         try:
             st.lookahead = int(engine.metrics().get("lookahead_frames", 0))
@@ -251,7 +256,11 @@ class Service:
             return
         if nonfinite:
             self.m.nonfinite.inc(nonfinite)
-        st = self._stream_for(frame, item.rate_hz)
+        try:
+            st = self._stream_for(frame, item.rate_hz)
+        except BadInput as exc:
+            self._reject(exc.reason, exc.detail)
+            return
         self.m.frames_in.inc(stream=frame.stream_id)
         self.publisher.publish("raw", frame)
         t0 = time.perf_counter()
@@ -353,6 +362,9 @@ class Service:
         """Serve until stopped or the source ends; flush; close. Returns the exit code (0)."""
         next_status = time.monotonic() + self.status_interval_s
         next_sync = 0.0
+        start_at = time.monotonic() + self.start_delay_s
+        while not self._stop.is_set() and time.monotonic() < start_at:
+            time.sleep(min(0.05, max(0.0, start_at - time.monotonic())))  # let subscribers connect first
         try:
             while not self._stop.is_set():
                 for item in self.source.poll(max_turn_s):
