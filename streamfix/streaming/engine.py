@@ -118,7 +118,7 @@ signature of :func:`streamfix.core.pipeline.clean_window`."""
 # --------------------------------------------------------------------------- config
 DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
 DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean latency)
-DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
+DEFAULT_HOP_S = 0.4  # H: 12 frames at 30 Hz
 
 
 @dataclass(frozen=True)
@@ -127,7 +127,7 @@ class EngineConfig:
 
     window W, hop H, lookahead L: frames, ``1 <= H <= L + 1 <= W``; the clean output's
     latency is ``L / rate_hz`` s plus compute. Left None, they follow the defaults in
-    seconds (W 2 s, H 1/3 s, L 0.5 s) at ``rate_hz``: 60/10/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
+    seconds (W 2 s, H 0.4 s, L 0.5 s) at ``rate_hz``: 60/12/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
     detection, filters). live: the live path's settings. max_iterations: solver
     iteration cap per window (None = the solver's default). solver_config: passed as
     ``config=`` to the window solver (None = its default). bone_lengths: fixed
@@ -487,6 +487,13 @@ class StreamEngine:
         self._thread = None
         if threaded:
             import queue
+            import sys
+
+            # The worker holds the GIL for stretches of small numpy calls; Python's default
+            # 5 ms switch interval would then delay the live frame by up to 5 ms. 0.5 ms
+            # keeps push() (the live path) responsive; process-wide, only ever lowered.
+            if sys.getswitchinterval() > 0.0005:
+                sys.setswitchinterval(0.0005)
 
             self._queue = queue.Queue()
             self._thread = threading.Thread(target=self._worker, name="streamfix-solver", daemon=True)
