@@ -60,16 +60,32 @@ def test_encoder_ignores_values_of_unobserved_joints(tiny):
 
 def test_decoder_jacobian_graph_is_the_exact_jacobian(tiny):
     model, s = tiny
-    z = np.random.default_rng(1).normal(0, 1, (2, 5)).astype(np.float32)
-    x_o, jac_o = s["decoder_jacobian"].run(None, {"z": z})
-    assert jac_o.shape == (2, 5, 16 * 25 * 3)
+    rng = np.random.default_rng(1)
+    z = rng.normal(0, 1, (2, 5)).astype(np.float32)
+    n = 16 * 25 * 3
+    w = (rng.random((2, n)) > 0.5).astype(np.float32)
+    y = rng.normal(0, 0.3, (2, n)).astype(np.float32)
+    c = rng.normal(0, 0.1, (2, 3)).astype(np.float32)
+    names = ["x", "jac", "r", "cost", "gram", "jtr", "h_zc"]
+    out = dict(zip(names, s["decoder_jacobian"].run(names, {"z": z, "w": w, "y": y, "c": c})))
+    assert out["jac"].shape == (2, 5, n)
     for b in range(2):
         jt = torch.autograd.functional.jacobian(
             lambda v: model.decoder(v.unsqueeze(0)).reshape(-1), torch.from_numpy(z[b]),
             vectorize=True, strategy="forward-mode",
         ).detach().numpy()  # (N, L), autograd's own forward-mode differentiation
-        np.testing.assert_allclose(jac_o[b], jt.T, atol=1e-5, rtol=0)
+        np.testing.assert_allclose(out["jac"][b], jt.T, atol=1e-5, rtol=0)
     with torch.no_grad():
-        np.testing.assert_allclose(x_o, model.decoder(torch.from_numpy(z)).numpy(), atol=1e-5, rtol=0)
-        x_j, jac_j = DecoderJacobian(model.decoder, 5)(torch.from_numpy(z))
-    np.testing.assert_allclose(jac_o, jac_j.numpy(), atol=1e-5, rtol=0)
+        x_t = model.decoder(torch.from_numpy(z)).numpy()
+        _, jac_j = DecoderJacobian(model.decoder, 5)(torch.from_numpy(z))
+    np.testing.assert_allclose(out["x"], x_t, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(out["jac"], jac_j.numpy(), atol=1e-5, rtol=0)
+    # the Levenberg-Marquardt terms appended to the graph, against numpy in float64
+    jac = jac_j.numpy().astype(np.float64)
+    r = w * ((x_t.reshape(2, -1, 3) + c[:, None, :]).reshape(2, -1) - y)
+    jw = jac * w[:, None, :]
+    np.testing.assert_allclose(out["r"], r, atol=1e-5, rtol=0)
+    np.testing.assert_allclose(out["cost"], (r * r).sum(1), rtol=1e-5)
+    np.testing.assert_allclose(out["gram"], jw @ jw.transpose(0, 2, 1), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out["jtr"][..., 0], (jw * r[:, None, :]).sum(2), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out["h_zc"], jw.reshape(2, 5, -1, 3).sum(2), rtol=1e-5, atol=1e-5)

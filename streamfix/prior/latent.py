@@ -11,7 +11,9 @@ Jr = A [dD/dz, dD/dc], each step solves
     (Jr^T Jr + lambda diag(Jr^T Jr) + eps I) delta = -Jr^T r
 
 The exact dD/dz comes from the exported ``decoder_jacobian`` graph: one batched
-onnxruntime call per iteration returns D(z) and dD/dz for every window of the batch.
+onnxruntime call per iteration returns D(z), the residual, its squared norm and the
+blocks of Jr^T Jr and Jr^T r for every window of the batch (no matrix products in
+numpy: a multi-threaded BLAS stalls on a busy machine).
 A step is accepted if it lowers ||r||^2 (lambda /= 3), otherwise rejected (lambda *= 4)
 and recomputed from the stored normal equations. The start is z(0) = E(Y), as in the
 paper (Sec. 5); the paper runs 500 Adam steps, Gauss-Newton needs a handful.
@@ -68,17 +70,19 @@ def fit_latent(
     window: np.ndarray,
     observed: np.ndarray,
     *,
-    max_iter: int = 8,
+    max_iter: int = 6,
     rel_tol: float = 1e-4,
     fit_tol_m: float = 0.0,
     latent_reg: float = 0.0,
     z0: np.ndarray | None = None,
+    damping: float = 1.0,
 ) -> LatentFit:
     """D(z*) for (T, J, 3) metre windows (or batches (B, T, J, 3)) with masks (T, J) / (B, T, J).
 
     ``max_iter`` LM iterations at most; stops early when the cost falls by less than
     ``rel_tol`` (relative). ``latent_reg`` adds ``latent_reg * ||z - z0||^2`` (0 = Eq. 1 as published).
     ``z0`` overrides the start E(Y) (e.g. the previous window's z* in a stream).
+    ``damping``: initial Levenberg-Marquardt lambda (relative to diag(Jr^T Jr)).
     """
     window = np.asarray(window, dtype=np.float64)
     observed = np.asarray(observed, dtype=bool)
@@ -96,36 +100,42 @@ def fit_latent(
     w = np.repeat(obs.reshape(b, -1), 3, axis=1).astype(np.float64)  # (B, N) observed coordinates of A
     yv = y.reshape(b, -1)
     n_obs = np.maximum(w.sum(axis=1), 1.0)
-    coord = np.tile(np.eye(3), (y.shape[1] * y.shape[2], 1)).T  # (3, N): dD/dc
     eye = np.eye(n_lat + 3)
     reg = np.zeros(n_lat + 3)
     reg[:n_lat] = latent_reg
 
-    sel = [np.flatnonzero(w[i] > 0) for i in range(b)]
     n_par = n_lat + 3
+    w32 = w.astype(np.float32)
+    tj = y.shape[1] * y.shape[2]
+    h_cc = w.reshape(b, tj, 3).sum(axis=1)  # (B, 3): d/dc block of Jr^T Jr is diagonal (observed count per axis)
+
+    y32 = yv.astype(np.float32)
 
     def evaluate(z: np.ndarray, c: np.ndarray):
-        x, jac = prior.decode_with_jacobian(z)
-        xv = (x.reshape(b, -1, 3).astype(np.float64) + c[:, None, :]).reshape(b, -1)
-        r = w * (xv - yv)
+        # one onnxruntime call gives D(z), r, ||r||^2 and the blocks of Jr^T Jr and Jr^T r
+        ne = prior.normal_equations(z, w32, y32, c)
+        r = ne["r"].astype(np.float64)
+        xv = (ne["x"].reshape(b, -1, 3).astype(np.float64) + c[:, None, :]).reshape(b, -1)
         dz = z - z_start
-        cost = (r * r).sum(axis=1) + latent_reg * (dz * dz).sum(axis=1)
-        h = np.empty((b, n_par, n_par))
+        cost = ne["cost"].astype(np.float64) + latent_reg * (dz * dz).sum(axis=1)
+        h = np.zeros((b, n_par, n_par))
+        h[:, :n_lat, :n_lat] = ne["gram"]
+        h[:, :n_lat, n_lat:] = ne["h_zc"]
+        h[:, n_lat:, :n_lat] = ne["h_zc"].transpose(0, 2, 1)
+        h[:, n_lat:, n_lat:] = h_cc[:, :, None] * np.eye(3)[None]
         g = np.empty((b, n_par, 1))
-        for i in range(b):  # windows: 2-D BLAS products over the observed coordinates only
-            jw = np.concatenate([jac[i][:, sel[i]], coord[:, sel[i]]], axis=0).astype(np.float64)  # Jr^T
-            h[i] = jw @ jw.T  # Jr^T Jr
-            g[i, :, 0] = jw @ r[i, sel[i]]  # Jr^T r
+        g[:, :n_lat] = ne["jtr"]
+        g[:, n_lat:, 0] = r.reshape(b, tj, 3).sum(axis=1)
         g[:, :n_lat, 0] += latent_reg * dz
         h += np.diag(reg)[None]
-        return x, xv, cost, h, g
+        return ne["x"], xv, cost, h, g
 
     z = z_start.copy()
     c = np.zeros((b, 3))
     x, xv, cost, h, g = evaluate(z, c)
     initial_cost = cost.copy()
     best = (z.copy(), c.copy(), xv.copy(), cost.copy(), h, g)
-    lam = np.full(b, 1e-3)
+    lam = np.full(b, float(damping))
     active = np.ones(b, dtype=bool)
     iterations = 0
     for _ in range(max_iter):

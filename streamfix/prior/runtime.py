@@ -5,8 +5,10 @@ A model is a JSON *card* beside three ONNX graphs (see ``streamfix/prior/models/
 * ``encoder``: inputs ``y`` (B, T, J, 3) normalised coordinates (0 where unobserved) and
   ``mask`` (B, T, J) 0/1; output ``z`` (B, L);
 * ``decoder``: input ``z`` (B, L); output ``x`` (B, T, J, 3) normalised coordinates;
-* ``decoder_jacobian``: input ``z`` (B, L); outputs ``x`` and ``jac`` (B, L, T*J*3),
-  the exact dD/dz used by the latent-space fit (``streamfix.prior.latent``).
+* ``decoder_jacobian``: inputs ``z`` (B, L), ``w`` (B, N) 0/1, ``y`` (B, N), ``c`` (B, 3)
+  (N = T*J*3); outputs ``x``, ``jac`` (B, L, N) the exact dD/dz, and the
+  Levenberg-Marquardt normal-equation terms ``r``, ``cost``, ``gram``, ``jtr``, ``h_zc``
+  used by the latent-space fit (``streamfix.prior.latent``; see ``train.add_gram_output``).
 
 The card carries the window length T (frames), the rate (Hz), the latent size L,
 the normalisation (``streamfix.prior.normalize``: root joint and reference bone
@@ -135,9 +137,30 @@ class Prior:
         return self._decoder.run(None, {"z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)})[0]
 
     def decode_with_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """D(z) (B, T, J, 3) and dD/dz (B, L, T*J*3), both float32, in one call."""
-        x, jac = self._jacobian.run(None, {"z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)})
+        """D(z) (B, T, J, 3) and the exact dD/dz (B, L, T*J*3), float32, in one call."""
+        z = np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)
+        b, n = z.shape[0], self.window * self.n_joints * 3
+        feeds = {"z": z, "w": np.zeros((b, n), np.float32), "y": np.zeros((b, n), np.float32),
+                 "c": np.zeros((b, 3), np.float32)}
+        x, jac = self._jacobian.run(["x", "jac"], feeds)
         return x, jac
+
+    def normal_equations(self, z: np.ndarray, w: np.ndarray, y: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
+        """One Levenberg-Marquardt linearisation of Eq. (1) at (z, c), in one onnxruntime call.
+
+        ``w`` (B, N) 0/1 observed coordinates, ``y`` (B, N) normalised observations,
+        ``c`` (B, 3) translation (N = T*J*3). Returns float32 arrays ``x`` D(z) (B, T, J, 3),
+        ``r`` = w (D(z) + c - y) (B, N), ``cost`` ||r||^2 (B,), ``gram`` (wJ)(wJ)^T (B, L, L),
+        ``jtr`` (wJ) r (B, L, 1) and ``h_zc`` (B, L, 3) (J = dD/dz).
+        """
+        feeds = {
+            "z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size),
+            "w": np.asarray(w, dtype=np.float32),
+            "y": np.asarray(y, dtype=np.float32),
+            "c": np.asarray(c, dtype=np.float32),
+        }
+        names = ["x", "r", "cost", "gram", "jtr", "h_zc"]
+        return dict(zip(names, self._jacobian.run(names, feeds)))
 
     def _check(self, tj: tuple, what: str) -> None:
         if tuple(tj) != (self.window, self.n_joints):

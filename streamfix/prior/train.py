@@ -7,7 +7,7 @@ the loss is the masked Euclidean loss over the joint-frames the *data* observed:
 
     L(Y, X^) = sum_n sum_j m_nj || Y_nj - X^_nj ||^2 / (3 sum m)                (Sec. 4.2)
 
-with X^ = D(E(A'Y)) (A' = the extra drop). Adam (lr 2e-3, divided by 10 after 75 %
+with X^ = D(E(A'Y)) (A' = the extra drop). AdamW (lr 2e-3, divided by 10 after 75 %
 and 90 % of the steps, as in the paper's Appendix A.1, scaled to our epochs).
 
 Deterministic for a seed: numpy ``Generator(seed)`` draws every window and mask,
@@ -60,7 +60,10 @@ class TrainConfig:
         steps_per_epoch: int = 40,
         lr: float = 2e-3,
         threads: int = 1,
+        weight_decay: float = 0.0,
+        input_noise: float = 0.0,
     ):
+        self.weight_decay, self.input_noise = weight_decay, input_noise
         self.epochs, self.seed, self.window = epochs, seed, window
         self.channels, self.latent, self.levels = channels, latent, levels
         self.batch, self.steps_per_epoch, self.lr, self.threads = batch, steps_per_epoch, lr, threads
@@ -109,12 +112,13 @@ def train(
     """Train on ``train_takes``; print progress and the held-out loss each epoch; return (model, history)."""
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
+    gen = torch.Generator().manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
     bones = KINECT_V2.bone_array
     ref = mean_bone_lengths(train_takes, bones)
     template = facing_template(train_takes, bones, ref)
     model = TemporalAutoencoder(25, config.window, config.channels, config.latent, config.levels)
-    opt = torch.optim.Adam(model.parameters(), lr=config.lr)
+    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     total = config.epochs * config.steps_per_epoch
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, [int(0.75 * total), int(0.9 * total)], gamma=0.1)
     held = held_out_windows(test_takes, bones, ref, config.window, 0.5, config.seed + 1, template) if test_takes else None
@@ -125,6 +129,8 @@ def train(
         losses = []
         for _ in range(config.steps_per_epoch):
             yi, mi, yt, mt = (torch.from_numpy(a) for a in make_batch(train_takes, rng, config.batch, bones, ref, config.window, template=template))
+            if config.input_noise > 0:  # sensor-like jitter on the encoder's input only (normalised units ~ m)
+                yi = yi + config.input_noise * torch.randn(yi.shape, generator=gen) * mi.unsqueeze(-1)
             loss = _masked_loss(model(yi, mi), yt, mt)
             opt.zero_grad()
             loss.backward()
@@ -176,79 +182,72 @@ def export_onnx(model: TemporalAutoencoder, out_dir: str | Path, stem: str = "ki
                 module, args, str(path), input_names=inputs, output_names=outputs,
                 dynamic_axes=dyn, opset_version=17, dynamo=False,
             )
+        if role == "decoder_jacobian":
+            inputs, outputs = add_gram_output(path)
         files[role] = {"file": path.name, "sha256": sha256_file(path), "inputs": inputs, "outputs": outputs}
+    torch.save({"config": cfg, "state_dict": model.state_dict()}, out_dir / f"{stem}.pt")  # for re-export, not shipped
     return files
 
 
-def train_and_export(
-    data_dir: str | Path,
-    out_dir: str | Path,
-    config: TrainConfig,
-    held_out: tuple[str, ...] = HELD_OUT,
-    log: Callable[[str], None] = print,
-    evaluate: bool = True,
-) -> dict:
-    """Load ``data_dir``, train, export the three graphs and write the card ``<out>/kinect_v2.json``."""
-    takes = load_takes(data_dir)
-    train_takes, test_takes = split_takes(takes, held_out)
-    log(
-        f"{len(train_takes)} training takes ({sum(t.positions.shape[0] / t.rate_hz for t in train_takes):.1f} s), "
-        f"held out: {', '.join(t.name for t in test_takes) or 'none'}"
-    )
-    model, history = train(train_takes, test_takes, config, log)
-    out_dir = Path(out_dir)
-    files = export_onnx(model, out_dir)
-    card = {
-        "name": "streamfix temporal-convolution autoencoder prior (Lohit et al.)",
-        "skeleton": "kinect_v2",
-        "n_joints": 25,
-        "window": config.window,
-        "rate_hz": MODEL_RATE_HZ,
-        "latent": config.latent,
-        "channels": config.channels,
-        "levels": config.levels,
-        "files": files,
-        "normalisation": {
-            "root_joint": "SpineBase",
-            "root_index": KINECT_V2_ROOT,
-            "method": "x_norm = (x - root_t) / k; root_t = SpineBase (interpolated where missing; "
-            "hip midpoint / mean of observed joints if absent from the window); "
-            "k = median over observed scale bones of (median bone length / reference length), clipped to [0.5, 2]",
-            "reference_bone_lengths_m": history["reference_bone_lengths_m"],
-            "bones": KINECT_V2.bone_array.tolist(),
-            "scale_bones_child_index": list(KINECT_V2_SCALE_BONES),
-            "facing_template": history["facing_template"],
-            "facing": "turned about y by the 2-D Procrustes angle onto facing_template (mean Kinect v2 pose, "
-            "root-relative, scale-normalised, facing the sensor)",
-            "unobserved_input": "0 in y and 0 in mask",
-        },
-        "training": {
-            "data": [
-                {"name": t.name, "source": t.source, "frames": int(t.positions.shape[0]), "rate_hz": t.rate_hz}
-                for t in train_takes
-            ],
-            "held_out": [t.name for t in test_takes],
-            "split": "whole takes held out (never frames of a training take)",
-            "observed": "BVH retargeted to Kinect v2: all joints; Kinect v2 CSV: tracked joints only",
-            "augmentation": "rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring (x negated + joint swap), "
-            "speed x0.7..x1.4 by linear resampling, joint dropping (subsets, limbs, runs of frames)",
-            "loss": "masked (ambient) MSE over the data's observed joint-frames (Lohit et al. Sec. 4.2)",
-            "config": config.as_dict(),
-            "final_train_loss": history["train_loss"][-1],
-            "final_held_out_loss": history["held_out_loss"][-1] if history["held_out_loss"] else None,
-            "torch": torch.__version__,
-            "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        },
-        "held_out_scores": [],
-    }
-    card_path = out_dir / "kinect_v2.json"
-    card_path.write_text(json.dumps(card, indent=1))
-    if evaluate and test_takes:
-        from streamfix.evaluation.occlusion import score_prior_on_takes
+def add_gram_output(path: str | Path) -> tuple[list[str], list[str]]:
+    """Append the Levenberg-Marquardt normal equations of Eq. (1) to an exported decoder-Jacobian graph (in place).
 
-        card["held_out_scores"] = score_prior_on_takes(card_path, test_takes, seed=config.seed)
-        card_path.write_text(json.dumps(card, indent=1))
-        for rec in card["held_out_scores"]:
-            log(f"held-out {rec['take']:>16s} {rec['pattern']:>10s} OTP {rec['test_otp']:3.0f}%  {rec['method']:>12s}  RMSE {100 * rec['rmse_m']:.2f} cm")
-    log(f"wrote {card_path}")
-    return card
+    New inputs: ``w`` (B, N) 1 for observed coordinates (the rows A keeps), 0 else;
+    ``y`` (B, N) the normalised observations; ``c`` (B, 3) the translation. New outputs
+    (with J = dD/dz, N = T*J*3 and r = w (D(z) + c - y)):
+    ``r`` (B, N); ``cost`` (B,) = ||r||^2; ``gram`` (B, L, L) = (wJ)(wJ)^T;
+    ``jtr`` (B, L, 1) = (wJ) r; ``h_zc`` (B, L, 3) = sum over joint-frames of wJ per axis.
+    Everything the step needs then runs inside onnxruntime on one thread, instead of
+    numpy products that call a multi-threaded BLAS (which stalls on a busy machine).
+    """
+    import onnx
+    from onnx import TensorProto, helper
+
+    model = onnx.load(str(path))
+    g = model.graph
+    jac = next(o for o in g.output if o.name == "jac")
+    n = jac.type.tensor_type.shape.dim[2].dim_value
+    lat = jac.type.tensor_type.shape.dim[1].dim_value
+    f = TensorProto.FLOAT
+    g.input.extend([
+        helper.make_tensor_value_info("w", f, ["batch", n]),
+        helper.make_tensor_value_info("y", f, ["batch", n]),
+        helper.make_tensor_value_info("c", f, ["batch", 3]),
+    ])
+    g.initializer.extend([
+        helper.make_tensor("ne_ax1", TensorProto.INT64, [1], [1]),
+        helper.make_tensor("ne_ax2", TensorProto.INT64, [1], [2]),
+        helper.make_tensor("ne_shape3", TensorProto.INT64, [3], [0, -1, 3]),
+        helper.make_tensor("ne_shape2", TensorProto.INT64, [2], [0, -1]),
+        helper.make_tensor("ne_shape4", TensorProto.INT64, [4], [0, lat, -1, 3]),
+    ])
+    g.node.extend([
+        # residual r = w (D(z) + c - y)
+        helper.make_node("Reshape", ["x", "ne_shape3"], ["ne_x3"]),
+        helper.make_node("Unsqueeze", ["c", "ne_ax1"], ["ne_c3"]),
+        helper.make_node("Add", ["ne_x3", "ne_c3"], ["ne_xc3"]),
+        helper.make_node("Reshape", ["ne_xc3", "ne_shape2"], ["ne_xc"]),
+        helper.make_node("Sub", ["ne_xc", "y"], ["ne_d"]),
+        helper.make_node("Mul", ["ne_d", "w"], ["r"]),
+        helper.make_node("ReduceSumSquare", ["r"], ["cost"], axes=[1], keepdims=0),
+        # rows of A J and the products
+        helper.make_node("Unsqueeze", ["w", "ne_ax1"], ["ne_w3"]),
+        helper.make_node("Mul", ["jac", "ne_w3"], ["ne_jw"]),
+        helper.make_node("Transpose", ["ne_jw"], ["ne_jwt"], perm=[0, 2, 1]),
+        helper.make_node("MatMul", ["ne_jw", "ne_jwt"], ["gram"]),
+        helper.make_node("Unsqueeze", ["r", "ne_ax2"], ["ne_r3"]),
+        helper.make_node("MatMul", ["ne_jw", "ne_r3"], ["jtr"]),
+        helper.make_node("Reshape", ["ne_jw", "ne_shape4"], ["ne_jw4"]),
+        helper.make_node("ReduceSum", ["ne_jw4", "ne_ax2"], ["h_zc"], keepdims=0),
+    ])
+    g.output.extend([
+        helper.make_tensor_value_info("r", f, ["batch", n]),
+        helper.make_tensor_value_info("cost", f, ["batch"]),
+        helper.make_tensor_value_info("gram", f, ["batch", lat, lat]),
+        helper.make_tensor_value_info("jtr", f, ["batch", lat, 1]),
+        helper.make_tensor_value_info("h_zc", f, ["batch", lat, 3]),
+    ])
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    init_names = {x.name for x in g.initializer}
+    return [i.name for i in g.input if i.name not in init_names], [o.name for o in g.output]

@@ -1,0 +1,144 @@
+"""The shipped Kinect v2 prior: it loads without torch, its card describes it, and D(z*) does what Eq. 1 says."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import onnx
+import pytest
+
+from streamfix.evaluation.occlusion import drop_masks, nearest_joint_fill
+from streamfix.prior.data import HELD_OUT, cut_windows, load_take, resample_masked
+from streamfix.prior.init import fill_long_gaps, prior_initial_guess
+from streamfix.prior.latent import fit_latent
+from streamfix.prior.runtime import DEFAULT_CARD, Prior, sha256_file
+from streamfix.skeletons import KINECT_V2
+
+
+@pytest.fixture(scope="module")
+def prior() -> Prior:
+    return Prior.load()
+
+
+@pytest.fixture(scope="module")
+def held_out(shared_data, prior):
+    """Held-out CMU take 131_02 at the prior's rate, as 64-frame windows with half the joints dropped."""
+    take = load_take(shared_data / "cmu_bvh" / "131_02.bvh")
+    pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, prior.rate_hz)
+    wins, masks, _ = cut_windows(pos, obs, prior.window, prior.window)
+    keep = drop_masks(len(wins), 25, prior.window, "random", 50.0, np.random.default_rng(5))
+    return np.nan_to_num(wins), masks, keep
+
+
+def test_runtime_does_not_import_torch():
+    code = (
+        "import sys, numpy as np\n"
+        "from streamfix.prior.runtime import Prior\n"
+        "from streamfix.prior.latent import fit_latent\n"
+        "from streamfix.prior.init import prior_initial_guess\n"
+        "p = Prior.load()\n"
+        "x = np.zeros((70, 25, 3)); o = np.ones((70, 25), bool)\n"
+        "prior_initial_guess(x + np.arange(25)[None, :, None] * 0.05, o, 30.0, prior=p)\n"
+        "assert 'torch' not in sys.modules, 'torch imported at run time'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+def test_card_matches_the_shipped_graphs(prior):
+    card = json.loads(DEFAULT_CARD.read_text())
+    assert card["skeleton"] == "kinect_v2" and card["n_joints"] == 25
+    t, j, l = card["window"], card["n_joints"], card["latent"]
+    assert t % (1 << card["levels"]) == 0 and card["rate_hz"] == 30.0
+    for role in ("encoder", "decoder", "decoder_jacobian"):
+        path = DEFAULT_CARD.parent / card["files"][role]["file"]
+        assert sha256_file(path) == card["files"][role]["sha256"]
+        assert path.stat().st_size < 4_000_000  # "a few MB at most" for all three together
+        graph = onnx.load(str(path)).graph
+        dims = {v.name: [d.dim_value or d.dim_param for d in v.type.tensor_type.shape.dim]
+                for v in list(graph.input) + list(graph.output)}
+        if role == "encoder":
+            assert dims["y"] == ["batch", t, j, 3] and dims["mask"] == ["batch", t, j] and dims["z"] == ["batch", l]
+        elif role == "decoder":
+            assert dims["z"] == ["batch", l] and dims["x"] == ["batch", t, j, 3]
+        else:
+            assert dims["jac"] == ["batch", l, t * j * 3]
+    norm = card["normalisation"]
+    assert len(norm["reference_bone_lengths_m"]) == KINECT_V2.n_bones
+    assert np.asarray(norm["bones"]).tolist() == KINECT_V2.bone_array.tolist()
+    # the split: held-out takes are scored and never trained on
+    trained = {d["name"] for d in card["training"]["data"]}
+    assert set(card["training"]["held_out"]) == set(HELD_OUT) and not trained & set(HELD_OUT)
+    assert {s["take"] for s in card["held_out_scores"]} == set(HELD_OUT)
+    # and it runs at the card's sizes, batch dynamic
+    z = prior.encode(np.zeros((3, t, j, 3)), np.ones((3, t, j)))
+    assert z.shape == (3, l) and prior.decode(z).shape == (3, t, j, 3)
+
+
+def test_a_tampered_graph_is_refused(tmp_path):
+    card = json.loads(DEFAULT_CARD.read_text())
+    for role in ("encoder", "decoder", "decoder_jacobian"):
+        (tmp_path / card["files"][role]["file"]).write_bytes((DEFAULT_CARD.parent / card["files"][role]["file"]).read_bytes())
+    card["files"]["decoder"]["sha256"] = "0" * 64
+    (tmp_path / "kinect_v2.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match="SHA-256"):
+        Prior.load(tmp_path)
+
+
+@pytest.mark.parametrize("tol", [0.0, 0.02])
+def test_latent_fit_never_moves_observed_joints_beyond_the_tolerance(prior, held_out, tol):
+    wins, masks, keep = held_out
+    obs = masks[:2] & keep[:2]
+    fit = fit_latent(prior, wins[:2], obs, fit_tol_m=tol)
+    dist = np.linalg.norm(fit.positions - wins[:2], axis=-1)[obs]
+    assert dist.max() <= tol + 1e-9
+    # the decoder alone does not fit them exactly, so the tolerance is what holds them
+    assert np.linalg.norm(fit.decoded - wins[:2], axis=-1)[obs].max() > tol
+    # unobserved joints come from the decoder
+    np.testing.assert_array_equal(fit.positions[~obs], fit.decoded[~obs])
+    # LM only accepts descent steps: the fit of Eq. (1) is never worse than z(0) = E(Y)
+    assert np.all(fit.fit_rms_m <= fit.initial_rms_m + 1e-12)
+
+
+def test_latent_optimisation_beats_the_feed_forward_pass(prior, held_out):
+    wins, masks, keep = held_out
+    obs = masks & keep
+    dropped = masks & ~keep
+    enc = prior.reconstruct(wins, obs)
+    lat = fit_latent(prior, wins, obs).decoded
+    nearest = np.stack([nearest_joint_fill(w, o, KINECT_V2.bone_array) for w, o in zip(wins, obs)])
+    rmse = lambda x: np.sqrt(((x - wins) ** 2).sum(-1)[dropped].mean())  # noqa: E731
+    assert rmse(lat) < rmse(enc)
+    assert rmse(lat) < rmse(nearest)
+
+
+@pytest.mark.parametrize("n_frames,rate", [(40, 30.0), (150, 30.0), (400, 120.0)])
+def test_initial_guess_handles_any_length_and_rate(prior, shared_data, n_frames, rate):
+    take = load_take(shared_data / "cmu_bvh" / "131_02.bvh")
+    pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, rate)
+    pos, obs = np.nan_to_num(pos[:n_frames]), obs[:n_frames].copy()
+    obs[:, [9, 10, 11, 23, 24]] = False  # right forearm and hand missing throughout
+    guess = prior_initial_guess(pos, obs, rate, prior=prior)
+    assert guess.shape == pos.shape and np.isfinite(guess).all()
+    np.testing.assert_array_equal(guess[obs], pos[obs])
+    err = np.linalg.norm(guess - pos, axis=-1)[~obs]
+    assert np.median(err) < 0.5  # in the body's vicinity, not at the origin or the sensor
+
+
+def test_fill_long_gaps_fills_only_long_gaps_and_meets_the_ends(prior, shared_data):
+    take = load_take(shared_data / "cmu_bvh" / "131_02.bvh")
+    pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, 30.0)
+    pos, obs = np.nan_to_num(pos[:120]), obs[:120].copy()
+    obs[20:60, 7] = False  # 40-frame gap: long
+    obs[80:84, 7] = False  # 4-frame gap: short, left to the solver
+    obs[100:, 3] = False  # trailing gap
+    filled, rec = fill_long_gaps(pos, obs, 30.0, min_gap_frames=15, prior=prior)
+    assert rec[20:60, 7].all() and rec[100:, 3].all()
+    assert not rec[80:84, 7].any() and np.isnan(filled[80:84, 7]).all()
+    assert rec.sum() == 40 + 20
+    np.testing.assert_array_equal(filled[obs], pos[obs])
+    # the fill joins the observed samples: its first/last values are a frame's motion away
+    step = np.linalg.norm(np.diff(pos[:, 7], axis=0), axis=-1).max()
+    assert np.linalg.norm(filled[20, 7] - pos[19, 7]) < step + 0.03
+    assert np.linalg.norm(filled[59, 7] - pos[60, 7]) < step + 0.03
