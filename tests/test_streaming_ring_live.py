@@ -104,3 +104,23 @@ def test_live_jitter_three_times_lower_than_input(cmu30, fraction):
     assert jitter(noisy) >= 3.0 * jitter(live)
     # the live output is still the motion: within 15 cm of the truth on average
     assert np.linalg.norm(live - truth, axis=2).mean() < 0.15
+
+
+@pytest.mark.parametrize("fraction", [0.10, 0.20])
+def test_clean_within_125_percent_of_offline_whole_sequence(cmu30, fraction):
+    """Issue 3: with a lookahead of at most 0.5 s, clean AJE <= 1.25x offline whole-sequence cleaning."""
+    from streamfix.core.metrics import aje
+    from streamfix.streaming.engine import default_window_solver
+    from streamfix.streaming.offline import clean_motion
+
+    truth = cmu30.positions
+    noisy, _ = add_noise(truth, fraction, np.random.default_rng(1))
+    motion = cmu30.copy()
+    motion.positions = noisy
+    cfg = EngineConfig(rate_hz=30.0)
+    assert cfg.latency_s <= 0.5
+    streamed, _ = clean_motion(motion, cfg)
+    solver = default_window_solver()
+    whole = solver(noisy, np.ones(noisy.shape[:2]), cmu30.skeleton.bone_array, None, 30.0).positions
+    assert aje(streamed.positions, truth) <= 1.25 * aje(whole, truth)
+    assert aje(streamed.positions, truth) < 0.25 * aje(noisy, truth)  # and it did clean
