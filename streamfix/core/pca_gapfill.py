@@ -1,0 +1,854 @@
+"""PCA gap filling with a training set (Li, Yu, Kieu, Vuong, Zhang 2020, "PCA-based
+robust motion data recovery", IEEE Access 8).
+
+Three estimators, as derived in the paper (motion matrix ``B`` is ``m x n``: ``m``
+frames, ``n = 3J`` coordinates; a 0/1 *template* marks the missing entries and is
+applied to every training sample ``A_i`` to give the incomplete ``A_i^(0)``):
+
+* Eq. (1)-(4), training set = one long sequence cut into pieces stacked vertically,
+  ``A = (A_1; ...; A_K)``: ``U`` = eigenvectors of ``A^T A`` (Eq. 1),
+  ``U_i^(0)`` of ``A_i^(0)T A_i^(0)``, ``A_i U = A_i^(0) U_i^(0) T`` (Eq. 2) solved for
+  the ``r x r`` ``T`` by least squares (Eq. 3), then ``B* = B U_B^(0) T U^T`` (Eq. 4).
+  -> :func:`eq4_estimate` (matrix level), :func:`fill_gaps` (positions level).
+* Eq. (5)-(8), training set = short pieces from different sources side by side,
+  ``A = (A_1, ..., A_K)``: ``V`` = eigenvectors of ``A A^T`` (Eq. 5),
+  ``V^T A_i = F V_i^(0)T A_i^(0)`` (Eq. 6), ``F`` by least squares (Eq. 7),
+  ``B* = V F V_B^(0)T B`` (Eq. 8). This is Eq. (4) on transposed matrices (the paper
+  says so: "no essential difference except the form of input matrix A").
+  -> :func:`eq8_estimate`, :func:`fill_gaps` with ``layout="pieces"``.
+* Eq. (9)-(16), whole frames missing: ``V`` = first ``r`` eigenvectors of ``A A^T``
+  (temporal basis over the ``m`` frames of a window, Eq. 9), split into the rows of
+  present frames ``V~`` and of missing frames ``V^``; coefficients by the weighted
+  least squares of Eq. (13)-(14), ``alpha* = (V~^T W V~)^-1 V~^T W B~``, and the
+  missing rows ``B^ = V^ alpha*`` (Eq. 15/16).
+  -> :func:`eq16_estimate`, :func:`fill_blackouts`.
+
+Choices the paper leaves open, made here and documented:
+
+* **Rank rule** (:func:`choose_rank`): ``r`` is the smallest number of leading
+  eigenvalues of the training Gram matrix (after removing the training mean) whose
+  sum reaches ``energy`` of the total, ``DEFAULT_ENERGY = 0.995`` (99.5 % of the
+  variance), capped by ``r_max`` and by what the template leaves observable.
+* **Basis alignment**: Eq. (2) assumes the individual eigenbases ``U_i^(0)``,
+  ``U_B^(0)`` are expressed consistently, but an eigen-decomposition fixes each
+  eigenvector only up to sign (and up to a rotation among close eigenvalues). Each
+  individual basis is therefore rotated onto the pooled incomplete training basis
+  by orthogonal Procrustes; this keeps every span (hence Eq. 2's premise) unchanged
+  and makes the result independent of the eigen-solver's arbitrary choices.
+* **Template per missing pattern** (:func:`fill_gaps`): frames are grouped by which
+  joints are missing; for each group the template zeroes those joints' columns in
+  the training pieces and in ``B``. Coordinates are expressed relative to the
+  per-frame centroid of the group's observed joints and centred on the training
+  mean (the "scaled to the same level in advance" of Section III-A), so training
+  takes recorded elsewhere in the room still apply.
+* **Weights of Eq. (13)**: ``W = diag(w_l)``, ``w_l = exp(-d_l / tau)`` with ``d_l`` the
+  distance (frames) of present frame ``l`` to the nearest missing frame; ``tau`` is
+  chosen from a small grid by minimising Eq. (13)'s prediction error of the removed
+  part over the training samples.
+* The printed Eq. (3) and Eq. (16) have typos (non-conforming ``U^T``; ``W`` missing in
+  the second factor); the code uses the normal equations of Eq. (2) and Eq. (14).
+
+All functions are pure: arrays in, arrays out. Positions ``(T, J, 3)`` metres, NaN =
+missing, observed masks ``(T, J)`` bool. Filled values never replace observed ones.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_ENERGY",
+    "choose_rank",
+    "eq4_estimate",
+    "eq8_estimate",
+    "eq16_estimate",
+    "eq16_basis",
+    "blackout_weights",
+    "fill_gaps",
+    "fill_blackouts",
+    "pca_fill",
+    "estimate_rigid_pairs",
+    "PcaGapFiller",
+    "TrainingSet",
+]
+
+DEFAULT_ENERGY = 0.9999
+"""Default explained-energy threshold of the rank rule (fraction of variance kept)."""
+
+_EPS = 1e-12
+
+
+# --------------------------------------------------------------------------- rank rule
+def choose_rank(eigenvalues: np.ndarray, energy: float = DEFAULT_ENERGY, r_max: int | None = None) -> int:
+    """Smallest ``r`` whose leading eigenvalues hold ``energy`` of the total (>= 1).
+
+    ``eigenvalues`` of a (centred) Gram matrix, any order; ``energy`` in (0, 1].
+    """
+    if not 0.0 < energy <= 1.0:
+        raise ValueError(f"energy must be in (0, 1], got {energy}")
+    lam = np.sort(np.clip(np.asarray(eigenvalues, dtype=np.float64).ravel(), 0.0, None))[::-1]
+    total = lam.sum()
+    if lam.size == 0 or total <= 0:
+        return 1
+    r = int(np.searchsorted(np.cumsum(lam) / total, energy - 1e-12) + 1)
+    r = min(r, lam.size)
+    if r_max is not None:
+        r = min(r, int(r_max))
+    return max(r, 1)
+
+
+# --------------------------------------------------------------------------- helpers
+def _top_eigvecs(G: np.ndarray, r: int) -> np.ndarray:
+    """Leading ``r`` eigenvectors of symmetric ``G`` (``(..., n, n)`` -> ``(..., n, r)``)."""
+    _, vecs = np.linalg.eigh(G)
+    return vecs[..., ::-1][..., :r]
+
+
+def _align(basis: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Rotate ``basis`` (``(..., n, r)``) within its span onto ``reference`` (Procrustes)."""
+    M = np.swapaxes(basis, -1, -2) @ reference
+    Wl, _, Zt = np.linalg.svd(M)
+    return basis @ (Wl @ Zt)
+
+
+def _solve_sym(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``P^-1 Q`` for symmetric positive semi-definite ``P`` (tiny ridge for rank loss)."""
+    ridge = 1e-10 * max(float(np.trace(P)) / max(P.shape[0], 1), _EPS)
+    return np.linalg.solve(P + ridge * np.eye(P.shape[0]), Q)
+
+
+def _eq4_from_grams(
+    G: np.ndarray, C0: np.ndarray, G0: np.ndarray, GB0: np.ndarray, r: int, r0: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. (1)-(3) from Gram matrices; returns ``(U, U_B0, T)`` for Eq. (4).
+
+    ``G`` ``(K, n, n)`` = ``A_i^T A_i``; ``C0`` ``(K, n, n)`` = ``A_i^(0)T A_i``;
+    ``G0`` ``(K, n, n)`` = ``A_i^(0)T A_i^(0)``; ``GB0`` ``(n, n)`` = ``B^(0)T B^(0)``.
+    ``r`` columns of ``U``; ``r0`` (default ``r``) columns of the incomplete bases.
+    """
+    r0 = r if r0 is None else r0
+    U = _top_eigvecs(G.sum(axis=0), r)                       # Eq. (1): A^T A = U S U^T
+    U_ref = _top_eigvecs(G0.sum(axis=0), r0)                 # pooled incomplete basis
+    Ui0 = _align(_top_eigvecs(G0, r0), U_ref)                # Eq. (1): A_i^(0)T A_i^(0)
+    UB0 = _align(_top_eigvecs(GB0, r0), U_ref)               # U_B^(0)
+    Uit = np.swapaxes(Ui0, -1, -2)
+    P = (Uit @ G0 @ Ui0).sum(axis=0)                         # sum U_i0^T A_i0^T A_i0 U_i0
+    Q = (Uit @ C0 @ U).sum(axis=0)                           # sum U_i0^T A_i0^T A_i U
+    T = _solve_sym(P, Q)                                     # Eq. (3) (normal equations of Eq. 2)
+    return U, UB0, T
+
+
+# --------------------------------------------------------------------------- matrix level
+def eq4_estimate(B0: np.ndarray, A: np.ndarray, A0: np.ndarray, r: int) -> np.ndarray:
+    """Eq. (4): ``B* = B^(0) U_B^(0) T U^T`` (estimate of the complete ``B``, ``m x n``).
+
+    ``B0`` ``(m, n)`` incomplete (template entries zero); ``A`` ``(K, m_i, n)`` complete
+    training pieces of one long sequence; ``A0`` the same with the template applied.
+    """
+    B0 = np.asarray(B0, dtype=np.float64)
+    A = np.asarray(A, dtype=np.float64)
+    A0 = np.asarray(A0, dtype=np.float64)
+    At, A0t = np.swapaxes(A, -1, -2), np.swapaxes(A0, -1, -2)
+    U, UB0, T = _eq4_from_grams(At @ A, A0t @ A, A0t @ A0, B0.T @ B0, r)
+    return B0 @ UB0 @ T @ U.T                                # Eq. (4)
+
+
+def eq8_estimate(B0: np.ndarray, A: np.ndarray, A0: np.ndarray, r: int) -> np.ndarray:
+    """Eq. (8): ``B* = V F V_B^(0)T B^(0)``; training pieces side by side, ``A = (A_1..A_K)``.
+
+    Shapes as :func:`eq4_estimate`, but every piece has the same ``m`` frames as ``B``
+    (``V`` is the ``m x r`` temporal eigenbasis of ``A A^T``, Eq. 5). With
+    ``P_i = A_i^(0)T V_i^(0)``, Eq. (7) is ``F^T = (sum P_i^T P_i)^-1 sum P_i^T A_i^T V``,
+    i.e. Eq. (3) on transposed matrices, so Eq. (8) is Eq. (4) on ``B^T``.
+    """
+    A = np.asarray(A, dtype=np.float64)
+    A0 = np.asarray(A0, dtype=np.float64)
+    B0 = np.asarray(B0, dtype=np.float64)
+    if A.shape[1] != B0.shape[0]:
+        raise ValueError(f"Eq. (8) needs training pieces of B's {B0.shape[0]} frames, got {A.shape[1]}")
+    # Eq. (5)-(7) via Grams over the frame axis: A_i A_i^T, A_i^(0) A_i^T, A_i^(0) A_i^(0)T.
+    V, VB0, Ft = _eq4_from_grams(A @ np.swapaxes(A, -1, -2), A0 @ np.swapaxes(A, -1, -2),
+                                 A0 @ np.swapaxes(A0, -1, -2), B0 @ B0.T, r)
+    return V @ Ft.T @ VB0.T @ B0                             # Eq. (8)
+
+
+def eq16_estimate(B_present: np.ndarray, V_present: np.ndarray, V_missing: np.ndarray,
+                  w: np.ndarray | None = None) -> np.ndarray:
+    """Eq. (14)-(16): missing rows ``V^ (V~^T W V~)^-1 V~^T W B~``.
+
+    ``B_present`` ``(j, c)`` present frames of ``c`` trajectories; ``V_present``
+    ``(j, r)`` / ``V_missing`` ``(m - j, r)`` the basis rows of present / missing frames;
+    ``w`` ``(j,)`` diagonal of ``W`` (ones if None). Returns ``(m - j, c)``.
+    """
+    Vp = np.asarray(V_present, dtype=np.float64)
+    w = np.ones(Vp.shape[0]) if w is None else np.asarray(w, dtype=np.float64)
+    VtW = Vp.T * w                                           # V~^T W
+    alpha = _solve_sym(VtW @ Vp, VtW @ np.asarray(B_present, dtype=np.float64))  # Eq. (14)
+    return np.asarray(V_missing) @ alpha                     # Eq. (12)/(16)
+
+
+def eq16_basis(windows: np.ndarray, energy: float = DEFAULT_ENERGY, r_max: int | None = None) -> np.ndarray:
+    """Eq. (9): temporal basis ``V`` ``(m, r+1)`` from training windows ``(K, m, c)``.
+
+    Column 0 is the constant trajectory (each trajectory's offset); the rest are the
+    leading eigenvectors of ``A A^T`` of the offset-free trajectories, ``r`` by
+    :func:`choose_rank`.
+    """
+    A = np.asarray(windows, dtype=np.float64)
+    m = A.shape[1]
+    A = A - A.mean(axis=1, keepdims=True)
+    lam, vecs = np.linalg.eigh(np.einsum("kmc,kpc->mp", A, A))  # A A^T, A = (A_1..A_K)
+    r = choose_rank(lam, energy, min(r_max or m - 2, m - 2))
+    const = np.full((m, 1), 1.0 / np.sqrt(m))
+    V = np.hstack([const, vecs[:, ::-1][:, :r]])
+    return V
+
+
+def blackout_weights(missing_rows: np.ndarray, tau: float) -> np.ndarray:
+    """``w_l = exp(-d_l / tau)`` for the present frames, ``d_l`` frames to nearest missing."""
+    miss = np.asarray(missing_rows, dtype=bool)
+    idx = np.arange(miss.size)
+    mi = np.flatnonzero(miss)
+    pos = np.searchsorted(mi, idx)
+    left = np.abs(idx - mi[np.clip(pos - 1, 0, mi.size - 1)])
+    right = np.abs(mi[np.clip(pos, 0, mi.size - 1)] - idx)
+    d = np.minimum(left, right)[~miss]
+    return np.exp(-(d - 1) / float(tau)) if np.isfinite(tau) else np.ones(d.size)
+
+
+_TAU_GRID = (4.0, 8.0, 16.0, 32.0, 64.0, np.inf)
+
+
+def _choose_tau(V: np.ndarray, missing_rows: np.ndarray, windows: np.ndarray, max_cols: int = 3000,
+                rng_seed: int = 0) -> float:
+    """Eq. (13): the ``tau`` of ``W`` with least prediction error of the removed rows."""
+    A = np.asarray(windows, dtype=np.float64)
+    cols = np.moveaxis(A, 1, 0).reshape(A.shape[1], -1)      # (m, K*c) training trajectories
+    if cols.shape[1] > max_cols:
+        sel = np.random.default_rng(rng_seed).choice(cols.shape[1], max_cols, replace=False)
+        cols = cols[:, sel]
+    present = ~missing_rows
+    best, best_err = np.inf, np.inf
+    for tau in _TAU_GRID:
+        pred = eq16_estimate(cols[present], V[present], V[missing_rows], blackout_weights(missing_rows, tau))
+        err = float(np.mean((pred - cols[missing_rows]) ** 2))
+        if err < best_err:
+            best, best_err = tau, err
+    return best
+
+
+# --------------------------------------------------------------------------- training data
+@dataclass
+class TrainingSet:
+    """Training motions for one joint/marker layout: a list of ``(T_k, J, 3)`` arrays (m).
+
+    NaN marks samples not observed; a frame is used for a template only where every
+    joint the template needs was observed. ``layout`` is ``"sequence"`` (one long
+    sequence, Eq. 4) or ``"pieces"`` (short pieces from different sources, Eq. 8).
+    """
+
+    motions: list[np.ndarray]
+    layout: str = "sequence"
+    _cat: np.ndarray | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.motions, np.ndarray):
+            self.motions = [self.motions]
+        self.motions = [np.asarray(m, dtype=np.float64) for m in self.motions]
+        if not self.motions:
+            raise ValueError("training set is empty: expected at least one (T, J, 3) array")
+        J = self.motions[0].shape[1]
+        for k, m in enumerate(self.motions):
+            if m.ndim != 3 or m.shape[1:] != (J, 3):
+                raise ValueError(f"training motion {k}: expected (T, {J}, 3), got {m.shape}")
+        if self.layout not in ("sequence", "pieces"):
+            raise ValueError(f"layout must be 'sequence' or 'pieces', got {self.layout!r}")
+
+    @property
+    def n_joints(self) -> int:
+        return self.motions[0].shape[1]
+
+    @property
+    def frames(self) -> np.ndarray:
+        """All training frames concatenated, ``(N, J, 3)``."""
+        if self._cat is None:
+            self._cat = np.concatenate(self.motions, axis=0)
+        return self._cat
+
+    @property
+    def observed(self) -> np.ndarray:
+        return np.isfinite(self.frames).all(axis=2)
+
+    def windows(self, m: int, hop: int | None = None, joints: np.ndarray | None = None) -> np.ndarray:
+        """Complete ``m``-frame windows ``(K, m, Jsel*3)`` from each motion (no straddling)."""
+        hop = hop or max(m // 2, 1)
+        out = []
+        for mot in self.motions:
+            x = mot if joints is None else mot[:, joints]
+            if x.shape[0] < m:
+                continue
+            starts = np.arange(0, x.shape[0] - m + 1, hop)
+            w = x[starts[:, None] + np.arange(m)[None, :]]   # (k, m, J, 3)
+            ok = np.isfinite(w).all(axis=(1, 2, 3))
+            out.append(w[ok].reshape(int(ok.sum()), m, -1))
+        if not out:
+            return np.zeros((0, m, (self.n_joints if joints is None else len(joints)) * 3))
+        return np.concatenate(out, axis=0)
+
+
+def _as_training(training, n_joints: int) -> TrainingSet:
+    ts = training if isinstance(training, TrainingSet) else TrainingSet(
+        [training] if isinstance(training, np.ndarray) else list(training))
+    if ts.n_joints != n_joints:
+        raise ValueError(f"training set has {ts.n_joints} joints, the motion to fill has {n_joints}")
+    return ts
+
+
+# --------------------------------------------------------------------------- gaps: Eq. (4)
+def _observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise ValueError(f"positions must be (T, J, 3) metres, got {x.shape}")
+    finite = np.isfinite(x).all(axis=2)
+    if observed is None:
+        return finite
+    observed = np.asarray(observed, dtype=bool)
+    if observed.shape != finite.shape:
+        raise ValueError(f"observed must be {finite.shape} (T, J), got {observed.shape}")
+    return observed & finite
+
+
+def _pattern_groups(obs: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique observed patterns among ``rows`` and, per row, its pattern index."""
+    pats, inv = np.unique(obs[rows], axis=0, return_inverse=True)
+    return pats, inv.ravel()
+
+
+def _select_predictors(obs_pat: np.ndarray, tr_obs: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Observed joints to use and the training frames where they and the missing ones exist.
+
+    Starts from the joints missing in the pattern (the targets), adds the pattern's
+    observed joints in order of their availability in training and stops before the
+    usable training frames drop under ``min_frames``. Returns (predictor joints, rows).
+    """
+    miss = ~obs_pat
+    rows = tr_obs[:, miss].all(axis=1)
+    cand = np.flatnonzero(obs_pat)
+    if rows.sum() == 0 or cand.size == 0:
+        return cand[:0], rows
+    full = rows & tr_obs[:, cand].all(axis=1)
+    if full.sum() >= min_frames:
+        return cand, full
+    order = cand[np.argsort(-tr_obs[rows][:, cand].sum(axis=0), kind="stable")]
+    keep = []
+    cur = rows.copy()
+    for j in order:  # greedy over joints (not frames): at most J boolean passes
+        nxt = cur & tr_obs[:, j]
+        if nxt.sum() < min_frames:
+            continue
+        keep.append(j)
+        cur = nxt
+    return np.array(sorted(keep), dtype=np.intp), cur
+
+
+def _kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """Rotations ``R`` ``(N, 3, 3)`` minimising ``|P_t R_t - Q|`` for centred ``P`` ``(N, k, 3)``, ``Q`` ``(k, 3)``."""
+    H = np.swapaxes(P, 1, 2) @ Q                             # (N, 3, 3)
+    Ul, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Ul @ Vt))
+    Ul[:, :, 2] *= d[:, None]
+    return Ul @ Vt
+
+
+def _normalise_frames(Z: np.ndarray, n_pred: int, ref: np.ndarray | None, rotate: bool
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Express frames ``Z`` ``(N, k, 3)`` in the frame of their first ``n_pred`` (observed) joints.
+
+    Subtracts the per-frame centroid of those joints and, with ``rotate``, rotates them
+    onto ``ref`` ``(n_pred, 3)`` (Kabsch; generalised Procrustes if ``ref`` is None).
+    Returns ``(local, centroid (N, 3), R (N, 3, 3), ref)``; room = local @ R^T + centroid.
+    """
+    cen = Z[:, :n_pred].mean(axis=1)
+    L = Z - cen[:, None, :]
+    if not rotate or n_pred < 3:
+        R = np.broadcast_to(np.eye(3), (Z.shape[0], 3, 3))
+        return L, cen, R, ref if ref is not None else L[:, :n_pred].mean(axis=0)
+    if ref is None:
+        sub = L[:: max(L.shape[0] // 300, 1), :n_pred]       # <= ~300 frames set the reference
+        ref = sub[0]
+        for _ in range(3):                                   # generalised Procrustes, 3 rounds
+            ref = (sub @ _kabsch(sub, ref)).mean(axis=0)
+    R = _kabsch(L[:, :n_pred], ref)
+    return L @ R, cen, R, ref
+
+
+def _fill_pattern(
+    x: np.ndarray, obs_pat: np.ndarray, frames: np.ndarray, ctx_frames: np.ndarray,
+    tr: np.ndarray, tr_obs: np.ndarray, piece_frames: int, energy: float, r_max: int | None,
+    min_train_frames: int, rotate: bool = True, max_train_frames: int = 4000,
+) -> np.ndarray | None:
+    """Eq. (1)-(4) for one template (one set of missing joints); returns (len(frames), Jmiss, 3)."""
+    miss_j = np.flatnonzero(~obs_pat)
+    pred_j, rows = _select_predictors(obs_pat, tr_obs, min_train_frames)
+    if pred_j.size == 0 or rows.sum() < min_train_frames:
+        return None
+    joints = np.concatenate([pred_j, miss_j])
+    n_pred = pred_j.size
+    # "scaled to the same level": coordinates in the frame of the observed joints
+    # (centroid removed and, with ``rotate``, rotated onto a reference pose)
+    rows = np.flatnonzero(rows)
+    rows = rows[:: max(rows.size // max_train_frames, 1)]   # 120 Hz frames are redundant
+    Yl, _, _, ref = _normalise_frames(tr[rows][:, joints], n_pred, None, rotate)
+    Y = Yl.reshape(Yl.shape[0], -1)
+    mu = Y.mean(axis=0)
+    Y = Y - mu
+    n = Y.shape[1]
+    o = 3 * n_pred                                           # observed coordinates come first
+    # pieces A_i of the long sequence (Eq. 1); the template zeroes the missing columns
+    K = max(Y.shape[0] // piece_frames, 1)
+    A = Y[: K * piece_frames].reshape(K, -1, n) if Y.shape[0] >= piece_frames else Y[None]
+    G = np.swapaxes(A, 1, 2) @ A                             # A_i^T A_i
+    G0 = np.zeros_like(G)
+    G0[:, :o, :o] = G[:, :o, :o]                             # A_i^(0)T A_i^(0)
+    C0 = np.zeros_like(G)
+    C0[:, :o, :] = G[:, :o, :]                               # A_i^(0)T A_i
+    lam = np.linalg.eigvalsh(G.sum(axis=0))
+    r = choose_rank(lam, energy, r_max)
+    r0 = min(r, max(o - (6 if rotate else 3), 1))            # normalisation removes 3 (6) dof
+    r = max(r, r0)
+
+    def _b(rows_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        Zl, cen, R, _ = _normalise_frames(x[rows_idx][:, joints], n_pred, ref, rotate)
+        Z = Zl.reshape(Zl.shape[0], -1) - mu
+        Z[:, o:] = 0.0                                       # the template
+        return Z, cen, R
+
+    # B^(0): this template's frames; its eigenbasis from them plus nearby frames where
+    # the same joints are observed (a few frames alone do not span r directions)
+    B0, cen, R = _b(frames)
+    Bctx = _b(ctx_frames)[0] if ctx_frames.size else B0
+    GB0 = Bctx.T @ Bctx
+    GB0[o:, :] = 0.0
+    GB0[:, o:] = 0.0
+    U, UB0, T = _eq4_from_grams(G, C0, G0, GB0, r, r0)
+    UB0[o:] = 0.0
+    Bstar = B0 @ UB0 @ T @ U.T + mu                          # Eq. (4)
+    local = Bstar[:, o:].reshape(len(frames), miss_j.size, 3)
+    out = local @ np.swapaxes(R, 1, 2) + cen[:, None, :]     # back to room coordinates
+    return out
+
+
+def fill_gaps(
+    positions: np.ndarray,
+    observed: np.ndarray | None,
+    training,
+    *,
+    energy: float = DEFAULT_ENERGY,
+    r_max: int | None = 60,
+    piece_frames: int = 240,
+    context_frames: int = 240,
+    min_observed_joints: int = 3,
+    min_train_frames: int | None = None,
+    max_train_frames: int = 4000,
+    layout: str | None = None,
+    rotate: bool = True,
+    boundary_correction: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fill joints missing in frames where at least ``min_observed_joints`` are observed.
+
+    ``positions`` ``(T, J, 3)`` metres (NaN = missing); ``observed`` ``(T, J)`` bool or
+    None (finite = observed); ``training``: a :class:`TrainingSet`, an array
+    ``(T_k, J, 3)`` or a list of them (same joint order). ``layout`` overrides the
+    training set's (``"sequence"`` -> Eq. 4 per missing-joint template;
+    ``"pieces"`` -> Eq. 8 on windows of ``context_frames`` frames).
+
+    ``boundary_correction`` (not in the paper): the same template is also applied to
+    the observed sample just before and just after each gap; the estimate's error
+    there is interpolated linearly across the gap and removed, so filled
+    trajectories join the observed ones without a step. Returns
+    ``(filled, filled_mask)``; observed samples are returned bit-for-bit.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(x, observed)
+    out = x.copy()
+    out[~obs] = np.nan
+    filled = np.zeros_like(obs)
+    ts = _as_training(training, x.shape[1])
+    layout = layout or ts.layout
+    enough = obs.sum(axis=1) >= min_observed_joints
+    rows = np.flatnonzero((~obs).any(axis=1) & enough)
+    if rows.size == 0:
+        return out, filled
+    if layout == "pieces":
+        return _fill_gaps_pieces(x, obs, ts, rows, energy=energy, r_max=r_max, window=context_frames)
+    tr = ts.frames
+    tr_obs = ts.observed
+    T_len, J, _ = x.shape
+    need = ~obs & enough[:, None]                            # samples this function fills
+    min_frames = min_train_frames or max(2 * 3 * J, 100)
+    # queries: (frame, template). Gap frames use their own observed pattern; probes are
+    # observed samples next to a gap, queried with that one joint removed.
+    q_rows, q_pats, q_probe = [rows], [obs[rows]], [np.full(rows.size, -1)]
+    if boundary_correction:
+        nb = np.zeros_like(need)
+        nb[:-1] |= need[1:]
+        nb[1:] |= need[:-1]
+        pt, pj = np.nonzero(obs & nb & enough[:, None])
+        pp = obs[pt].copy()
+        pp[np.arange(pt.size), pj] = False
+        ok = pp.sum(axis=1) >= min_observed_joints
+        q_rows.append(pt[ok]), q_pats.append(pp[ok]), q_probe.append(pj[ok])
+    q_rows, q_pats, q_probe = np.concatenate(q_rows), np.concatenate(q_pats), np.concatenate(q_probe)
+    pats, inv = np.unique(q_pats, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    resid = np.full(x.shape, np.nan)
+    for p in range(pats.shape[0]):  # one template per missing-joint pattern
+        sel = np.flatnonzero(inv == p)
+        frames, probe_j = q_rows[sel], q_probe[sel]
+        pat = pats[p]
+        order = np.argsort(frames, kind="stable")
+        frames, probe_j = frames[order], probe_j[order]
+        # context: frames near this template's frames where its observed joints are all seen
+        lo = max(frames[0] - context_frames // 2, 0)
+        hi = min(frames[-1] + context_frames // 2 + 1, T_len)
+        near = np.arange(lo, hi)
+        near = near[obs[near][:, pat].all(axis=1)]
+        est = _fill_pattern(x, pat, frames, near, tr, tr_obs, piece_frames, energy, r_max, min_frames,
+                            rotate, max_train_frames)
+        if est is None:
+            continue
+        miss_j = np.flatnonzero(~pat)
+        g = probe_j < 0
+        fr = frames[g]
+        out[fr[:, None], miss_j[None, :]] = est[g]
+        filled[fr[:, None], miss_j[None, :]] = True
+        if (~g).any():                                       # probe residuals e = x - x_hat
+            pr, pjj = frames[~g], probe_j[~g]
+            col = np.searchsorted(miss_j, pjj)
+            resid[pr, pjj] = x[pr, pjj] - est[~g][np.arange(pr.size), col]
+    filled &= need
+    if boundary_correction and filled.any():
+        out = out + _residual_field(resid, obs, filled)
+    out[obs] = x[obs]
+    return out, filled
+
+
+def _residual_field(resid: np.ndarray, obs: np.ndarray, filled: np.ndarray) -> np.ndarray:
+    """Per filled sample, the probe residuals at the gap's two ends, linearly blended
+    over the gap (one end known: held constant); zero elsewhere. ``(T, J, 3)``."""
+    T_len = obs.shape[0]
+    idx = np.arange(T_len)[:, None]
+    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
+    nxt = np.minimum.accumulate(np.where(obs, idx, T_len)[::-1], axis=0)[::-1]
+    jj = np.arange(obs.shape[1])[None, :]
+    ep = np.where((prev >= 0)[..., None], resid[np.clip(prev, 0, T_len - 1), jj], np.nan)
+    en = np.where((nxt < T_len)[..., None], resid[np.clip(nxt, 0, T_len - 1), jj], np.nan)
+    w = ((idx - prev) / np.maximum(nxt - prev, 1))[..., None]
+    both = np.isfinite(ep).all(-1) & np.isfinite(en).all(-1)
+    corr = np.where(both[..., None], ep + w * (en - ep),
+                    np.where(np.isfinite(ep), ep, np.where(np.isfinite(en), en, 0.0)))
+    corr[~filled] = 0.0
+    return np.nan_to_num(corr)
+
+
+def _fill_gaps_pieces(x, obs, ts, rows, *, energy, r_max, window):
+    """Eq. (5)-(8): per ``window``-frame block around missing samples, F learned from
+    ``window``-frame training pieces of all sources with the block's template."""
+    T_len, J, _ = x.shape
+    out = x.copy()
+    out[~obs] = np.nan
+    filled = np.zeros_like(obs)
+    m = min(window, T_len)
+    A = ts.windows(m)                                        # (K, m, n) complete pieces
+    if A.shape[0] == 0:
+        return out, filled
+    # blocks of m frames covering the rows that need filling
+    starts = np.unique(np.clip((rows // m) * m, 0, T_len - m))
+    for s in starts:
+        blk = slice(s, s + m)
+        ob = obs[blk]
+        need = (~ob) & (ob.sum(axis=1, keepdims=True) >= 1)
+        if not need.any():
+            continue
+        tmpl = np.repeat(ob, 3, axis=1)                      # (m, n) template, True = present
+        B = np.where(np.repeat(ob[:, :, None], 3, axis=2), x[blk], 0.0).reshape(m, -1)
+        # column offsets from present entries, same rule for the training pieces
+        cnt = np.maximum(tmpl.sum(axis=0), 1)
+        muB = (B * tmpl).sum(axis=0) / cnt
+        muA = (A * tmpl).sum(axis=1) / cnt                   # (K, n)
+        B0 = (B - muB) * tmpl
+        Ac = A - muA[:, None, :]
+        A0 = Ac * tmpl
+        lam = np.linalg.eigvalsh(np.einsum("kmc,kpc->mp", Ac, Ac))
+        r = choose_rank(lam, energy, r_max)
+        Bstar = eq8_estimate(B0, Ac, A0, r) + muB
+        est = Bstar.reshape(m, J, 3)
+        never = tmpl.reshape(m, J, 3).sum(axis=0)[:, 0] == 0  # joint absent in whole block
+        need &= ~never[None, :]
+        out[blk][need] = est[need]
+        filled[blk][need] = True
+    return out, filled
+
+
+# --------------------------------------------------------------------------- blackouts: Eq. (16)
+def _runs(flag: np.ndarray) -> list[tuple[int, int]]:
+    d = np.diff(np.concatenate([[0], flag.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def fill_blackouts(
+    positions: np.ndarray,
+    observed: np.ndarray | None,
+    training,
+    *,
+    blackout: np.ndarray | None = None,
+    window: int = 200,
+    max_fraction: float = 0.3,
+    energy: float = DEFAULT_ENERGY,
+    r_max: int | None = 60,
+    bases: dict | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (9)-(16): fill runs of whole missing frames from a temporal PCA basis.
+
+    ``blackout`` ``(T,)`` bool marks the frames to treat as missing whole (default:
+    frames with no observed joint). Each run is estimated inside a window of
+    ``max(window, run / max_fraction)`` frames around it (shifted inward at the take's
+    ends, so a run at the very start or end is extrapolated). The present rows of the
+    window must be complete (fill partial gaps first). ``bases`` caches ``V`` and
+    ``tau`` per (window, template) between calls. Returns ``(filled, filled_mask)``.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(x, observed)
+    out = x.copy()
+    out[~obs] = np.nan
+    filled = np.zeros_like(obs)
+    T_len, J, _ = x.shape
+    if blackout is None:
+        blackout = ~obs.any(axis=1)
+    blackout = np.asarray(blackout, dtype=bool)
+    runs = _runs(blackout)
+    if not runs:
+        return out, filled
+    ts = _as_training(training, J)
+    bases = {} if bases is None else bases
+    for a, b in runs:
+        L = b - a
+        m = min(max(window, int(np.ceil(L / max_fraction))), T_len)
+        if m - L < 4:
+            continue                                         # nothing to anchor the fit
+        s = int(np.clip(a - (m - L) // 2, 0, T_len - m))
+        blk = np.arange(s, s + m)
+        miss_rows = blackout[blk]
+        present_ok = obs[blk][~miss_rows].all(axis=0)        # joints complete on present rows
+        if not present_ok.any():
+            continue
+        key_v = ("V", m)
+        if key_v not in bases:
+            Aw = ts.windows(m)
+            if Aw.shape[0] == 0:
+                continue
+            bases[key_v] = (eq16_basis(Aw, energy, r_max), Aw)
+        V, Aw = bases[key_v]
+        if (~miss_rows).sum() <= V.shape[1]:
+            continue
+        key_t = ("tau", m, miss_rows.tobytes())
+        if key_t not in bases:
+            bases[key_t] = _choose_tau(V, miss_rows, Aw)
+        w = blackout_weights(miss_rows, bases[key_t])
+        cols = x[blk].reshape(m, -1)
+        okc = np.repeat(present_ok, 3)
+        est = eq16_estimate(cols[~miss_rows][:, okc], V[~miss_rows], V[miss_rows], w)  # Eq. (16)
+        tgt = np.zeros((m, J), dtype=bool)
+        tgt[miss_rows] = present_ok[None, :]
+        tgt &= ~obs[blk]
+        full = np.full((int(miss_rows.sum()), J * 3), np.nan)
+        full[:, okc] = est
+        full = full.reshape(-1, J, 3)
+        sub_rows = blk[miss_rows]
+        sel = tgt[miss_rows]
+        out[sub_rows[:, None].repeat(J, 1)[sel], np.broadcast_to(np.arange(J), sel.shape)[sel]] = full[sel]
+        filled[sub_rows[:, None].repeat(J, 1)[sel], np.broadcast_to(np.arange(J), sel.shape)[sel]] = True
+    return out, filled
+
+
+def _interp_leftover(x: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation per joint coordinate (edges hold); fallback for what PCA left."""
+    T_len = x.shape[0]
+    idx = np.arange(T_len)[:, None]
+    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
+    nxt = np.minimum.accumulate(np.where(obs, idx, T_len)[::-1], axis=0)[::-1]
+    hp, hn = prev >= 0, nxt < T_len
+    p, q = np.clip(prev, 0, T_len - 1), np.clip(nxt, 0, T_len - 1)
+    jj = np.arange(x.shape[1])[None, :]
+    xp, xq = x[p, jj], x[q, jj]
+    w = np.clip((idx - p) / np.maximum(q - p, 1), 0, 1)[..., None]
+    est = np.where((hp & hn)[..., None], xp + w * (xq - xp), np.where(hp[..., None], xp, xq))
+    ok = (hp | hn) & ~obs
+    out = x.copy()
+    out[ok] = est[ok]
+    return out, ok
+
+
+def pca_fill(
+    positions: np.ndarray,
+    observed: np.ndarray | None,
+    training,
+    *,
+    energy: float = DEFAULT_ENERGY,
+    min_observed_joints: int = 3,
+    blackout_window: int = 200,
+    fallback_linear: bool = True,
+    **gap_kwargs,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Everything: partial gaps by Eq. (4)/(8), whole missing frames by Eq. (16).
+
+    Frames with fewer than ``min_observed_joints`` observed joints count as blackout
+    frames. Whatever neither estimator could fill (e.g. no training frame has the
+    joint) is linearly interpolated when ``fallback_linear``. Returns
+    ``(filled, filled_mask)``; with nothing missing the output equals the input.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(x, observed)
+    out = x.copy()
+    out[~obs] = np.nan
+    if obs.all():
+        return out, np.zeros_like(obs)
+    ts = _as_training(training, x.shape[1])
+    out1, f1 = fill_gaps(out, obs, ts, energy=energy, min_observed_joints=min_observed_joints, **gap_kwargs)
+    have = obs | f1
+    black = obs.sum(axis=1) < min_observed_joints
+    out2, f2 = fill_blackouts(out1, have, ts, blackout=black, window=blackout_window, energy=energy)
+    have2 = have | f2
+    if fallback_linear and not have2.all():
+        out2, f3 = _interp_leftover(out2, have2)
+        have2 = have2 | f3
+    filled = have2 & ~obs
+    out2[obs] = x[obs]
+    return out2, filled
+
+
+# --------------------------------------------------------------------------- rigid pairs
+def estimate_rigid_pairs(positions: np.ndarray, observed: np.ndarray | None = None, k: int = 60,
+                         min_common: int = 30) -> np.ndarray:
+    """The ``k`` marker pairs whose distance varies least (std / mean, where both seen).
+
+    Returns ``(k, 2)`` int pairs sorted from most to least rigid. Pairs seen together
+    in fewer than ``min_common`` frames are skipped.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = _observed_mask(x, observed)
+    T_len, J, _ = x.shape
+    ia, ib = np.triu_indices(J, 1)
+    both = obs[:, ia] & obs[:, ib]                           # (T, P)
+    d = np.linalg.norm(x[:, ia] - x[:, ib], axis=2)
+    d = np.where(both, d, np.nan)
+    cnt = both.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.nanmean(d, axis=0)
+        cv = np.nanstd(d, axis=0) / mean
+    cv = np.where(cnt >= min_common, cv, np.inf)
+    order = np.argsort(cv, kind="stable")[: min(k, int(np.isfinite(cv).sum()))]
+    return np.stack([ia[order], ib[order]], axis=1).astype(np.intp)
+
+
+def pair_distance_plausibility(positions: np.ndarray, observed: np.ndarray, filled: np.ndarray,
+                               pairs: np.ndarray, tol_m: float = 0.0) -> float:
+    """Fraction of filled samples whose rigid-pair distances lie in the observed range.
+
+    For each pair, the range ``[min, max]`` of its distance over frames where both
+    markers were observed (widened by ``tol_m``); a filled sample (t, j) is plausible
+    when every pair involving ``j`` whose other marker exists at ``t`` stays in range.
+    Samples in no pair are not counted. Returns a fraction in [0, 1] (nan if none).
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = np.asarray(observed, dtype=bool)
+    fil = np.asarray(filled, dtype=bool)
+    pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
+    a, b = pairs[:, 0], pairs[:, 1]
+    d = np.linalg.norm(x[:, a] - x[:, b], axis=2)           # (T, P)
+    both = obs[:, a] & obs[:, b]
+    dmin = np.nanmin(np.where(both, d, np.inf), axis=0) - tol_m
+    dmax = np.nanmax(np.where(both, d, -np.inf), axis=0) + tol_m
+    inside = (d >= dmin) & (d <= dmax)
+    exists = np.isfinite(d)
+    T_len, J = obs.shape
+    bad = np.zeros((T_len, J), dtype=bool)
+    counted = np.zeros((T_len, J), dtype=bool)
+    for side, other in ((a, b), (b, a)):                     # loop over 2 sides, vectorised over pairs
+        rel = fil[:, side] & exists
+        c = np.zeros((T_len, J), dtype=np.int64)
+        np.add.at(c.T, side, rel.T)
+        counted |= c > 0
+        bb = np.zeros((T_len, J), dtype=np.int64)
+        np.add.at(bb.T, side, (rel & ~inside).T)
+        bad |= bb > 0
+    n = int((counted & fil).sum())
+    if n == 0:
+        return float("nan")
+    return float(((counted & fil) & ~bad).sum() / n)
+
+
+# --------------------------------------------------------------------------- streaming class
+class PcaGapFiller:
+    """Fill long gaps and blackouts in windows of one body's stream.
+
+    Usage (streaming engine)::
+
+        filler = PcaGapFiller()                    # or PcaGapFiller(training=reference_takes)
+        filler.fit(clean_history)                  # (T_hist, J, 3) m, the body's recent clean output
+        filled, filled_mask = filler.fill(window_positions, window_observed)
+
+    ``fit`` may be called again at any time (e.g. every few seconds) with newer
+    history; reference takes given to the constructor are kept and combined with
+    the history. ``ready`` is False until some training exists; ``fill`` then only
+    interpolates linearly (``filled_mask`` still marks what was produced).
+    """
+
+    def __init__(self, training=None, *, energy: float = DEFAULT_ENERGY, blackout_window: int = 200,
+                 min_observed_joints: int = 3, piece_frames: int = 240, max_history: int = 3000) -> None:
+        self.energy = energy
+        self.blackout_window = blackout_window
+        self.min_observed_joints = min_observed_joints
+        self.piece_frames = piece_frames
+        self.max_history = max_history
+        self._reference: list[np.ndarray] = []
+        if training is not None:
+            ts = training if isinstance(training, TrainingSet) else TrainingSet(
+                [training] if isinstance(training, np.ndarray) else list(training))
+            self._reference = list(ts.motions)
+        self._history: np.ndarray | None = None
+        self._training: TrainingSet | None = TrainingSet(self._reference) if self._reference else None
+        self._bases: dict = {}
+
+    @property
+    def ready(self) -> bool:
+        return self._training is not None
+
+    def fit(self, history: np.ndarray) -> "PcaGapFiller":
+        """(Re)train from the body's recent clean history ``(T_hist, J, 3)`` metres.
+
+        Only the last ``max_history`` frames are kept; NaN samples are allowed (frames
+        lacking a joint are simply not used for templates that need it).
+        """
+        h = np.asarray(history, dtype=np.float64)
+        if h.ndim != 3 or h.shape[2] != 3:
+            raise ValueError(f"history must be (T_hist, J, 3) metres, got {h.shape}")
+        if self._reference and h.shape[1] != self._reference[0].shape[1]:
+            raise ValueError(f"history has {h.shape[1]} joints, reference takes have {self._reference[0].shape[1]}")
+        self._history = h[-self.max_history:].copy()
+        self._training = TrainingSet(self._reference + [self._history])
+        self._bases = {}
+        return self
+
+    def fill(self, positions: np.ndarray, observed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Fill a window ``(T, J, 3)``; returns ``(filled, filled_mask (T, J))``."""
+        x = np.asarray(positions, dtype=np.float64)
+        obs = _observed_mask(x, observed)
+        if self._training is None:
+            out = x.copy()
+            out[~obs] = np.nan
+            out, f = _interp_leftover(out, obs)
+            return out, f
+        return pca_fill(x, obs, self._training, energy=self.energy, min_observed_joints=self.min_observed_joints,
+                        blackout_window=min(self.blackout_window, x.shape[0]), piece_frames=self.piece_frames)
