@@ -15,8 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=60, help="epochs of --steps batches (default 60)")
     parser.add_argument("--steps", type=int, default=40, help="batches per epoch (default 40)")
     parser.add_argument("--seed", type=int, default=0, help="seed for weights, windows, augmentation and masks (default 0)")
-    parser.add_argument("--latent", type=int, default=48, help="latent size L (default 48)")
-    parser.add_argument("--channels", type=int, default=96, help="feature maps per conv layer (default 96)")
+    parser.add_argument("--latent", type=int, default=32, help="latent size L (default 32)")
+    parser.add_argument("--channels", type=int, default=64, help="feature maps per conv layer (default 64)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--held-out", default=None,
                         help="comma-separated take names to hold out (default: 131_02,neutral_01_000,Ges04_comehere)")
