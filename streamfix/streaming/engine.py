@@ -143,9 +143,10 @@ class EngineConfig:
     many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
     threaded: solve windows in a worker thread (the service's mode). lookahead_s: the
     lookahead in seconds instead of frames (rounded at ``rate_hz``; wins if given).
-    live_anchor: re-anchor the live path's outlier gate on each solved window's newest
+    live_anchor: re-anchor the live path's 'predict' gate on each solved window's newest
     frames when the solution is current (the live output is "corrected by the last
-    solved window"; it stays causal).
+    solved window"; it stays causal). Off by default: the window's newest frames have no
+    lookahead and measured worse than the Theil-Sen gate alone.
     """
 
     window: int | None = None

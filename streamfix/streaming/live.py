@@ -2,22 +2,35 @@
 
 Per body and per frame, all vectorised across joints (microseconds, no solver):
 
-1. **Outlier gate** (per coordinate). The reference is a constant-velocity prediction
-   from the previous *gated* samples, ``r_t = g_{t-1} + (g_{t-1} - g_{t-3}) / 2``; a
-   coordinate whose innovation ``|x_t - r_t|`` exceeds
-   ``tau = max(gate_min_m, gate_k * s)`` (``s`` a running mean absolute innovation of
-   accepted samples) is replaced by ``r_t``. This rejects isolated spikes such as the
-   uniform +-25 cm corruption of Yang et al.'s protocol, which a low-pass filter alone
-   only spreads out. Re-acquisition: after ``reacquire`` consecutive rejections, a
-   coordinate whose last ``reacquire`` raw samples agree with each other within ``tau``
-   is accepted (the body really moved), so the gate cannot lock out a real jump.
+1. **Outlier gate** (per coordinate), default ``gate='theil_sen'``: the reference is
+   the Theil-Sen line through the last ``gate_frames`` (7) *raw* samples of the
+   coordinate (slope = median of pairwise slopes, breakdown point 29 %), evaluated at
+   the newest sample; a sample whose distance to it exceeds
+   ``tau = max(gate_min_m, gate_k * s)`` (``s`` a time-smoothed 1.4826 MAD of the
+   line's residuals) is replaced by the line's value. This rejects isolated spikes such
+   as the uniform +-25 cm corruption of Yang et al.'s protocol, which a low-pass filter
+   alone only spreads out, while following real motion (the line tracks velocity) and
+   real sensor noise (``s`` adapts). Replaced values are never fed back, so the gate
+   cannot drift or lock out. ``gate='predict'`` is the older variant (constant-velocity
+   prediction from the gated history, with re-acquisition after ``reacquire``
+   rejections); measured worse on real Kinect data (it raised jitter) and kept for
+   comparison. ``gate='none'`` disables the gate.
 2. **Low-pass**: the One Euro filter (Casiez et al. 2012) or the Kinect SDK Holt filter
    from :mod:`streamfix.core.filters`, on the gated samples.
 3. **Bone-length projection** (non-iterative): walking the skeleton tree from its roots,
    one depth level at a time (vectorised within a level), each child is placed at
-   ``parent' + l_b * u`` with ``u`` the filtered bone direction and ``l_b`` the robust
+   ``l_b * u`` from its parent, ``u`` the filtered bone direction and ``l_b`` the robust
    bone length the engine estimates from the clean history. Bones without a length
-   estimate are left alone.
+   estimate are left alone. By default (``propagate=False``) the parent is taken
+   unprojected, so a joint moves only along its own bone and an error never spreads
+   down the chain; ``propagate=True`` is forward kinematics (exact lengths, lower bone
+   CV on Kinect, but a wrong parent drags its subtree: on CMU 131_01 with 20 %
+   corruption the live jitter cut drops from ~6x to ~3x).
+
+Measured (``OMP_NUM_THREADS=1``): on CMU 131_01 at 30 Hz with 10 / 20 % of entries
+corrupted by U(+-25 cm), live jitter 8.0x / 6.2x lower than the input's and live AJE
+18 / 29 mm (input 36 / 69 mm); on the five real Kinect v2 recordings jitter roughly
+halved; about 0.27 ms per body-frame.
 
 A joint missing in the input is predicted (``r_t``; held when no velocity is known)
 and flagged recovered. Units: metres, seconds.
@@ -36,10 +49,11 @@ class LiveConfig:
     """Parameters of the live path.
 
     filter: 'one_euro' | 'holt' | 'none'. min_cutoff (Hz), beta (s/m), d_cutoff (Hz):
-    One Euro parameters. gate_min_m: smallest gate radius (m); gate_k: radius in units
-    of the running mean absolute innovation; reacquire: consecutive rejections after
-    which self-consistent raw samples are accepted; project: apply the bone-length
-    projection.
+    One Euro parameters. gate: 'theil_sen' | 'predict' | 'none'; gate_frames: raw
+    samples in the Theil-Sen line; gate_min_m: smallest gate radius (m); gate_k: radius
+    in units of the residual scale; reacquire ('predict' gate): consecutive rejections
+    after which self-consistent raw samples are accepted; project: apply the bone-length
+    projection; propagate: forward-kinematics projection (see the module doc).
     """
 
     filter: str = "one_euro"
@@ -49,12 +63,18 @@ class LiveConfig:
     gate_min_m: float = 0.03
     gate_k: float = 4.0
     reacquire: int = 3
+    gate: str = "theil_sen"
+    gate_frames: int = 7
     project: bool = True
     propagate: bool = False
 
     def __post_init__(self) -> None:
         if self.filter not in ("one_euro", "holt", "none"):
             raise ValueError(f"live filter must be 'one_euro', 'holt' or 'none', got {self.filter!r}")
+        if self.gate not in ("theil_sen", "predict", "none"):
+            raise ValueError(f"live gate must be 'theil_sen', 'predict' or 'none', got {self.gate!r}")
+        if self.gate_frames < 3:
+            raise ValueError(f"gate_frames must be >= 3, got {self.gate_frames}")
         if self.reacquire < 1:
             raise ValueError(f"reacquire must be >= 1 frame, got {self.reacquire}")
 
@@ -121,6 +141,16 @@ def project_bone_lengths(
         good = np.isfinite(new).all(axis=1)
         out[c[good]] = new[good]
     return out
+
+
+def _nanmedian0(a: np.ndarray) -> np.ndarray:
+    """Median over axis 0 ignoring NaN (NaN where a column has none); fast for small axis 0."""
+    srt = np.sort(a, axis=0)  # NaN sorts last
+    n = (~np.isnan(a)).sum(axis=0)
+    lo = np.maximum((n - 1) // 2, 0)[None]
+    hi = np.maximum(n // 2, 0)[None]
+    med = 0.5 * (np.take_along_axis(srt, lo, 0)[0] + np.take_along_axis(srt, hi, 0)[0])
+    return np.where(n > 0, med, np.nan)
 
 
 class _OneEuro:
@@ -192,6 +222,11 @@ class LivePath:
         """Forget the motion history (kept: bone lengths)."""
         J = self.n_joints
         self._g = np.full((3, J, 3), np.nan)  # gated samples g_{t-1}, g_{t-2}, g_{t-3}
+        K = self.cfg.gate_frames
+        self._hist = np.full((K, J, 3), np.nan)  # raw samples, oldest first (theil_sen gate)
+        self._u = np.arange(K, dtype=np.float64)
+        self._pi, self._pj = np.triu_indices(K, 1)
+        self._du = (self._u[self._pj] - self._u[self._pi])[:, None, None]
         self._raw = np.full((max(self.cfg.reacquire, 1), J, 3), np.nan)  # newest first
         self._scale = np.full((J, 3), np.nan)  # running mean |innovation| (m)
         self._rejected = np.zeros((J, 3), dtype=np.int64)
@@ -242,6 +277,24 @@ class LivePath:
                 d = np.median(x[cur] - g1[cur], axis=0)
         return g1 + d + (vel - common)
 
+    def robust_line(self) -> tuple[np.ndarray, np.ndarray]:
+        """Theil-Sen line through the last ``gate_frames`` raw samples of each coordinate.
+
+        Slope ``b`` = median of the pairwise slopes, intercept ``a`` = median of
+        ``x_i - b u_i`` (breakdown point 29 %: two corrupted samples out of 7 do not move
+        it). Returns the line's value at the newest sample ``(J, 3)`` m and the robust
+        residual scale ``1.4826 MAD`` ``(J, 3)`` m (NaN with fewer than 3 samples).
+        """
+        H = self._hist
+        slopes = (H[self._pj] - H[self._pi]) / self._du
+        b = _nanmedian0(slopes)
+        a = _nanmedian0(H - b[None] * self._u[:, None, None])
+        resid = H - (a[None] + b[None] * self._u[:, None, None])
+        sigma = 1.4826 * _nanmedian0(np.abs(resid))
+        n = (~np.isnan(H)).sum(axis=0)
+        r = np.where(n >= 3, a + b * self._u[-1], np.nan)
+        return r, np.where(n >= 3, sigma, np.nan)
+
     def step(self, x: np.ndarray, valid: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """One frame: raw ``(J, 3)`` m (NaN missing), ``valid (J,)``, time ``t`` s.
 
@@ -250,6 +303,8 @@ class LivePath:
         """
         cfg = self.cfg
         valid3 = np.broadcast_to(valid[:, None], x.shape)
+        if cfg.gate == "theil_sen":
+            return self._step_theil_sen(x, valid, valid3, t)
         r = self.predict(x, valid)
         have_ref = np.isfinite(r)
         innov = np.abs(x - r)
@@ -281,6 +336,31 @@ class LivePath:
         if reacquired is not None and reacquired.any():  # restart those coordinates at rest
             self._g[1:, reacquired] = x[reacquired]
             self._scale[reacquired] = np.nan
+        return self._finish(g, outlier, valid, t)
+
+    def _step_theil_sen(self, x, valid, valid3, t):
+        """Gate against the robust line through the raw history (no feedback of gated values)."""
+        cfg = self.cfg
+        self._hist = np.roll(self._hist, -1, axis=0)
+        self._hist[-1] = np.where(valid3, x, np.nan)
+        r, sigma = self.robust_line()
+        have_ref = np.isfinite(r)
+        innov = np.abs(x - r)
+        # robust residual scale, smoothed over time (EMA, ~10 frames)
+        upd = np.isfinite(sigma)
+        self._scale = np.where(
+            upd, np.where(np.isfinite(self._scale), 0.9 * self._scale + 0.1 * sigma, sigma), self._scale
+        )
+        scale = np.where(np.isfinite(self._scale), self._scale, cfg.gate_min_m)
+        tau = np.maximum(cfg.gate_min_m, cfg.gate_k * scale)
+        outlier = valid3 & have_ref & (innov > tau)
+        self.gated_total += int(outlier.any(axis=1).sum())
+        last = self._last
+        g = np.where(valid3 & ~outlier, x, np.where(have_ref, r, last))
+        return self._finish(g, outlier, valid, t)
+
+    def _finish(self, g, outlier, valid, t):
+        cfg = self.cfg
         joint_ok = np.isfinite(g).all(axis=1)
         if self._filter is not None:
             if hasattr(self._filter, "rate_hz"):
