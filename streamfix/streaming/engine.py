@@ -534,11 +534,12 @@ class StreamEngine:
                     self._drain(other, out)
         return out
 
-    def flush(self, timeout: float | None = None) -> list[tuple[str, SkeletonFrame]]:
+    def flush(self, timeout: float | None = 10.0) -> list[tuple[str, SkeletonFrame]]:
         """Finalise every body of every stream and emit all pending clean frames.
 
         Threaded mode waits up to ``timeout`` s (None = forever) for the queued windows;
-        windows still unsolved then are abandoned (their frames use the live value).
+        windows still unsolved then are abandoned (their frames use the live value), so
+        a stalled solver cannot hang a shutdown.
         """
         out: list[tuple[str, SkeletonFrame]] = []
         for st in self.streams.values():
@@ -865,12 +866,17 @@ class StreamEngine:
             job = self._queue.get()
             if job is None:
                 return
-            if job.status == "pending":
-                self._run_job(job)
-            with self._cond:
-                self._inflight -= 1
-                self._done_total += 1
-                self._cond.notify_all()
+            try:
+                if job.status == "pending":
+                    self._run_job(job)
+            except BaseException as exc:  # never leave a job pending: its frames would wait
+                job.error = f"{type(exc).__name__}: {exc}"
+                job.status = "done"
+            finally:
+                with self._cond:
+                    self._inflight -= 1
+                    self._done_total += 1
+                    self._cond.notify_all()
 
     # ------------------------------------------------------------------ results
     def _drain(self, st: _Stream, out: list) -> None:
