@@ -14,11 +14,14 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    mode of the residual distribution even when 80 % of entries are corrupted, which a
    redescending M-estimator finds and the l1 term does not. Sensor confidence
    multiplies the weights (Kinect *inferred* joints count half: low confidence, not
-   missing). ``h`` is chosen from the contamination measured in a first pass:
-   enough clean samples must fall in a window,
-   ``h = (min_support (1 + 2 eps^2) / (1 - eps) - 1) / 2`` frames, clipped to
-   ``[max(h_min_frames, h_min_s * rate), h_max_s * rate]`` (0.3 s: longer windows
-   bias fast motion, e.g. Xia's "angry" walk at 30 Hz).
+   missing). **Window by rigidity:** the fit is run for each candidate window
+   (``candidate_windows_s``, 2-9 frames at 30 Hz, 8-36 at 120 Hz) and, as a fallback
+   for windows too short or fast for any local fit, the running median + Savitzky-Golay
+   (unbiased for symmetric noise however heavy); the candidate whose bone lengths vary
+   least over time (median absolute deviation, :func:`_bone_spread`) wins. A skeleton's
+   bones are rigid, so this needs no ground truth: a fit that follows the clean samples
+   keeps them constant, one that chased corrupted samples does not. Ties go to the
+   shortest window (least bias).
 2. **Outliers become missing.** An observed entry whose residual exceeds
    ``outlier_threshold_m`` is replaced by the robust fit (the protocol's noise is
    per coordinate, so this acts per coordinate); the rest keep their observed value.
@@ -47,32 +50,34 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
 
 Measured (``benchmarks/bench_accuracy.py``, seed 0; AJE in m, CMU 131_01 / 131_02):
 
-=========  ===============  ===============  ===============  ==============
+=========  ================  ===============  ===============  ===============
 level      120 Hz streamfix  30 Hz streamfix  30 Hz yang       30 Hz med+SG
-=========  ===============  ===============  ===============  ==============
-5 %        0.0001 / 0.0001  0.0009 / 0.0007  0.0033 / 0.0030  0.0064 / 0.0050
-20 %       0.0003 / 0.0003  0.0041 / 0.0028  0.0127 / 0.0090  0.0151 / 0.0109
-80 %       0.0195 / 0.0152  0.0651 / 0.0561  0.175 / 0.165    0.0969 / 0.0944
-=========  ===============  ===============  ===============  ==============
+=========  ================  ===============  ===============  ===============
+5 %        0.0001 / 0.0001   0.0006 / 0.0006  0.0033 / 0.0030  0.0063 / 0.0050
+20 %       0.0003 / 0.0003   0.0042 / 0.0028  0.0127 / 0.0090  0.0159 / 0.0109
+80 %       0.0197 / 0.0151   0.0651 / 0.0561  0.177 / 0.165    0.0969 / 0.0944
+=========  ================  ===============  ===============  ===============
 
-Gaps at 30 Hz, gap MAE 10 % / 20 %: 0.038 / 0.035 and 0.018 / 0.028 m (linear
-0.17 / 0.21 and 0.06 / 0.10 m; spline 0.15 / 0.16 and 0.07 / 0.16 m). Kinect v2 files: jitter after/before 0.17-0.23
-(median_savgol 0.23-0.26), bone-length CV after/before 0.003-0.13 (yang 0.44-0.61).
-Weak spot: very short, fast clips at 30 Hz under 80 % corruption (Xia "angry",
-35 frames: 0.19 m vs median_savgol's 0.10 m), where too few clean samples fall
-in any window for the mode to be found.
+Gaps at 30 Hz, gap MAE 10 % / 20 %: 0.038 / 0.034 and 0.018 / 0.028 m (linear
+0.17 / 0.21 and 0.06 / 0.10 m; spline 0.15 / 0.16 and 0.07 / 0.16 m). Kinect v2
+files: jitter after/before 0.17-0.22 (median_savgol 0.23-0.26), bone-length CV
+after/before 0.005-0.12 (yang 0.44-0.61). Weak spot: short (27-48 frames), fast Xia
+clips at 30 Hz under 80 % corruption, where streamfix is about level with
+median_savgol (0.09-0.12 m vs 0.10 m; the six Xia takes at 120 Hz and at 5-20 % are
+all well below it).
 
 Arrays: positions ``(T, J, 3)`` metres (NaN = missing), confidence ``(T, J)`` in [0, 1].
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import correlate1d
 
 from . import alm
-from .filters import running_median
+from .filters import median_savgol, running_median
 from .interpolate import interpolate_linear
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
 
@@ -85,11 +90,11 @@ class PipelineConfig:
 
     # stage 1: robust temporal regression
     scales_m: tuple[float, ...] = (0.10, 0.05, 0.02, 0.01)
-    probe_window_s: float = 0.1
-    min_support: float = 5.0
+    candidate_windows_s: tuple[float, ...] = (0.067, 0.1, 0.133, 0.2, 0.3)
     h_min_frames: int = 2
-    h_min_s: float = 0.05
-    h_max_s: float = 0.3
+    median_fallback: bool = True
+    fallback_margin: float = 1.0
+    min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
     inferred_weight: float = 0.5
     # stage 3: solver for missing joint-frames
@@ -184,13 +189,6 @@ def robust_temporal_fit(
     return fit.reshape(shape), resid.reshape(shape), support.reshape(shape)
 
 
-def _half_width(eps: float, rate_hz: float, cfg: PipelineConfig) -> int:
-    support = cfg.min_support * (1.0 + 2.0 * eps**2)  # heavier contamination: ask for more
-    h = int(np.ceil((support / max(1.0 - eps, 0.05) - 1.0) / 2.0))
-    lo = max(cfg.h_min_frames, int(round(cfg.h_min_s * rate_hz)))
-    return int(np.clip(h, lo, max(lo, int(round(cfg.h_max_s * rate_hz)))))
-
-
 def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
     """Robust scale (m) of the residual of a local quadratic fit of half-width ``h`` frames.
 
@@ -202,6 +200,30 @@ def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
     fit, _ = _local_poly(y, w, h)
     r = np.abs(y - fit)[w > 0]
     return float(1.4826 * np.median(r)) if r.size else 0.0
+
+
+def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float) -> float:
+    """Model-selection score (m): mean over bones of the median |l_t - median_t l|.
+
+    A skeleton's bones are rigid, so an estimate that follows the clean samples keeps
+    their lengths nearly constant, while one that chased corrupted samples does not.
+    Only frames where both ends are observed, and bones longer than ``min_bone_m``
+    (BVH hierarchies contain zero-length bones), count. Needs no ground truth.
+    """
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if len(b) == 0:
+        return 0.0
+    lengths = np.linalg.norm(positions[:, b[:, 0]] - positions[:, b[:, 1]], axis=2)
+    lengths = np.where(observed[:, b[:, 0]] & observed[:, b[:, 1]], lengths, np.nan)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        typical = np.nanmedian(lengths, axis=0)
+        keep = typical > min_bone_m
+        if not keep.any():
+            return 0.0
+        dev = np.nanmedian(np.abs(lengths[:, keep] - typical[keep]), axis=0)
+    dev = dev[np.isfinite(dev)]
+    return float(dev.mean()) if dev.size else 0.0
 
 
 # --------------------------------------------------------------------------- stage 5
@@ -272,19 +294,32 @@ def clean_window(
     # prior weight: tracked 1, inferred (0 < c < 1) -> inferred_weight, missing 0
     prior = np.where(conf >= 1.0, 1.0, np.where(obs, cfg.inferred_weight, 0.0))
 
-    # stage 1: probe pass measures contamination, then the adapted pass
-    h0 = max(cfg.h_min_frames, int(round(cfg.probe_window_s * rate_hz)))
-    _, r0, _ = robust_temporal_fit(x, prior, h0, cfg.scales_m)
+    # stage 1: one robust fit per candidate window; keep the one whose bones stay rigid
     obs3 = np.repeat(obs[..., None], 3, axis=2)
-    eps = float(np.mean(np.abs(r0[obs3]) > cfg.outlier_threshold_m)) if obs3.any() else 0.0
-    h = _half_width(eps, rate_hz, cfg)
-    fit, resid, support = robust_temporal_fit(x, prior, h, cfg.scales_m)
-    info.update(contamination=eps, half_width_frames=h)
+    widths = sorted({max(cfg.h_min_frames, int(round(w * rate_hz))) for w in cfg.candidate_windows_s})
+    best = None
+    spreads = {}
+    for h in widths:
+        fit_h, resid_h, _ = robust_temporal_fit(x, prior, h, cfg.scales_m)
+        est = np.where(obs3 & (np.abs(np.nan_to_num(resid_h, nan=np.inf)) <= cfg.outlier_threshold_m), x, fit_h)
+        spreads[h] = _bone_spread(est, obs, bones, cfg.min_bone_m)
+        if best is None or spreads[h] < spreads[best[0]]:
+            best = (h, fit_h, resid_h)
+    h, fit, resid = best
+    if cfg.median_fallback:
+        # the median's answer is unbiased for symmetric noise, however heavy: a fallback
+        # for windows too short or too fast for any local fit to find the clean samples
+        med = median_savgol(x, rate_hz, obs)
+        s_med = _bone_spread(med, obs, bones, cfg.min_bone_m)
+        spreads["median_savgol"] = s_med
+        if s_med < cfg.fallback_margin * spreads[h]:
+            h, fit, resid = "median_savgol", med, np.where(obs3, x - med, np.nan)
+    info.update(half_width_frames=h, bone_spread_m=spreads)
 
     # stage 2: outlying coordinates take the robust fit
     outlier = obs3 & (np.abs(np.nan_to_num(resid, nan=np.inf)) > cfg.outlier_threshold_m)
     cleaned = np.where(obs3 & ~outlier, x, fit)
-    info["outlier_fraction"] = float(outlier[obs3].mean()) if obs3.any() else 0.0
+    info["outlier_fraction"] = info["contamination"] = float(outlier[obs3].mean()) if obs3.any() else 0.0
 
     # stage 4: is what is left white sensor noise (smooth it) or motion detail (keep it)?
     wc = np.repeat(prior, 3, axis=1).reshape(n_frames, -1)
