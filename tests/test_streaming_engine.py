@@ -343,3 +343,26 @@ def test_config_rejects_inconsistent_window_hop_lookahead():
         EngineConfig(window=60, hop=5, lookahead=60)
     cfg = EngineConfig(rate_hz=30.0, lookahead_s=0.5)
     assert cfg.lookahead == 15 and cfg.hop <= 16
+
+
+def test_stalled_solver_and_a_departed_body_do_not_hold_the_stream(kinect):
+    """A body that left while its last window is stuck must not block clean output."""
+    solver = GatedSolver()
+    T = kinect.n_frames
+    present = np.zeros(T, bool)
+    present[:30] = True  # body 2 leaves at frame 30 and times out 1 s later
+    frames = list(_two_body_frames(kinect, present))
+    engine = ThreadedStreamEngine(KINECT_V2, EngineConfig(rate_hz=30.0, max_clean_delay_s=1.0), solver)
+    out = []
+    try:
+        for f in frames:
+            out += engine.push(f)
+        clean = split(out)[1]
+        # bounded backlog: lookahead + 1 s of frames at most are still waiting
+        assert len(clean) >= T - (15 + 1 + 30) - 2
+        assert [f.seq for f in clean] == [f.seq for f in frames[: len(clean)]]
+    finally:
+        solver.release.set()
+    out += engine.flush(timeout=30)
+    engine.close()
+    assert [f.seq for f in split(out)[1]] == [f.seq for f in frames]

@@ -885,7 +885,8 @@ class StreamEngine:
         for body in list(st.bodies.values()) + list(st.ending):
             if self.threaded:
                 # a frame waiting too long beyond its lookahead: abandon the stalled window
-                while body.jobs and body.jobs[0].status == "pending" and body.count - body.final_upto > limit:
+                # (measured in stream frames, so a body that has left cannot hold the stream)
+                while body.jobs and body.jobs[0].status == "pending" and st.g - (body.g0 + body.final_upto) >= limit:
                     body.jobs[0].status = "abandoned"
                     self.counters["windows_abandoned"] += 1
                     self._process_jobs(st, body)
