@@ -119,6 +119,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamfix serve: cannot serve metrics on port {args.metrics_port}: {exc}", file=sys.stderr)
         return 2
     service.install_signal_handlers()
+    if not args.sync:
+        # the solver thread holds the GIL in slices; shorter slices let the live path in sooner
+        sys.setswitchinterval(0.0005)
     metrics = (
         f", metrics on http://{service.metrics_server.host}:{service.metrics_server.port}/metrics"
         if service.metrics_server

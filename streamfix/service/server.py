@@ -3,7 +3,7 @@
 One thread runs the loop (the metrics HTTP server and a stdin reader, if used, have
 their own daemon threads; the engine may solve windows on its own worker):
 
-1. ``source.poll(<=50 ms)`` gives raw frames, skeleton announcements and rejected
+1. ``source.poll(<=10 ms)`` gives raw frames, skeleton announcements and rejected
    messages. A rejected or invalid message is counted under its reason
    (``streamfix_malformed_total{reason}``), logged in one line, and skipped.
 2. A valid frame is published on ``raw``, pushed into its stream's engine (created on
@@ -358,7 +358,7 @@ class Service:
         print(self.status_line(), file=self.status_stream, flush=True)
 
     # ------------------------------------------------------------------ loop
-    def run(self, *, max_turn_s: float = 0.05, drain_timeout_s: float = 2.0) -> int:
+    def run(self, *, max_turn_s: float = 0.01, drain_timeout_s: float = 2.0) -> int:
         """Serve until stopped or the source ends; flush; close. Returns the exit code (0)."""
         next_status = time.monotonic() + self.status_interval_s
         next_sync = 0.0
