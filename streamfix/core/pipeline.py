@@ -154,6 +154,8 @@ def _local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.nd
     M[..., 0, 0] += 1e-12
     M[..., 1, 1] += 1e-9  # tiny ridge on slope/curvature: a lone sample gives a constant fit
     M[..., 2, 2] += 1e-9
+    # LU with pivoting: the closed-form cofactor solution loses all precision when a
+    # window holds one or two weighted samples (cancellation in the 2x2 minors)
     sol = np.linalg.solve(M, np.stack(R, axis=-1)[..., None])[..., 0]
     return sol[..., 0], S[0]
 
@@ -217,11 +219,12 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
     lengths = np.where(observed[:, b[:, 0]] & observed[:, b[:, 1]], lengths, np.nan)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        typical = np.nanmedian(lengths, axis=0)
+        med = np.median if np.isfinite(lengths).all() else np.nanmedian  # fast path: no gaps
+        typical = med(lengths, axis=0)
         keep = typical > min_bone_m
         if not keep.any():
             return 0.0
-        dev = np.nanmedian(np.abs(lengths[:, keep] - typical[keep]), axis=0)
+        dev = med(np.abs(lengths[:, keep] - typical[keep]), axis=0)
     dev = dev[np.isfinite(dev)]
     return float(dev.mean()) if dev.size else 0.0
 
