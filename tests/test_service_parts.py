@@ -160,3 +160,21 @@ def test_default_replay_file_missing_names_where_it_looked(tmp_path, monkeypatch
     (tmp_path / "a.csv").write_text("")
     (tmp_path / "0.bvh").write_text("")
     assert default_replay_file().name == "a.csv"
+
+
+def test_stdin_accepts_what_tap_json_prints_including_skeleton_lines():
+    from streamfix.transport.wire import SkeletonMessage
+
+    arm = {"topic": "sf/meta/arm", "kind": "meta", "stream": "arm", "type": "skeleton", "skeleton": "arm3",
+           "joint_names": ["a", "b", "c"], "bones": [[0, 1], [1, 2]], "rate_hz": 60.0, "units": "m"}
+    msg = parse_line(json.dumps(arm), "stdin", 0)
+    assert isinstance(msg, SkeletonMessage) and msg.skeleton.n_joints == 3 and msg.rate_hz == 60.0
+    frame_line = {"topic": "sf/live/arm", "kind": "live", "stream": "arm", "type": "frame", "seq": 4,
+                  "t_sensor_ns": 5_000, "t_publish_ns": 6_000, "latency_ms": 0.1, "skeleton": "arm3",
+                  "filled": False, "bodies": [{"id": 1, "joints": [[0, 0, 1], None, [0, 1, 1]],
+                                               "confidence": [1.0, 0.0, 0.5], "recovered": None}]}
+    f = parse_line(json.dumps(frame_line), "stdin", 0)
+    assert (f.stream_id, f.seq, f.sensor_time_ns, f.skeleton) == ("arm", 4, 5_000, "arm3")
+    out, n_bad = validate_frame(f, {"arm3": msg.skeleton})
+    assert n_bad == 1 and np.isnan(out.bodies[0].positions[1]).all()
+    np.testing.assert_array_equal(out.bodies[0].confidence, [1.0, 0.0, 0.5])

@@ -172,6 +172,7 @@ class StdinSource:
         self.stream_id = stream_id
         self._queue: "queue.Queue[Item | None]" = queue.Queue(maxsize=maxsize)
         self.exhausted = False
+        self.skeletons: dict[str, Skeleton] = {}
         self._seq = 0
         self._thread = threading.Thread(target=self._read, name="stdin-source", daemon=True)
         self._thread.start()
@@ -188,6 +189,10 @@ class StdinSource:
                     self._queue.put(Rejected(exc.reason, f"stdin line {lineno}: {exc.detail}"))
                     continue
                 if frame is None:
+                    continue
+                if not isinstance(frame, SkeletonFrame):  # a skeleton line announces a layout
+                    self.skeletons[frame.skeleton.name] = frame.skeleton
+                    self._queue.put(Announce(frame.stream_id, frame.skeleton, frame.rate_hz))
                     continue
                 self._seq = frame.seq + 1
                 # put() blocks when the service is behind: back-pressure on the pipe, not unbounded memory

@@ -21,11 +21,14 @@ that parsed, the skeleton is ``kinect_v2``, and there is one body (id 0).
                  "joints": [[x, y, z], ...],        # J rows, metres; null = missing
                  "confidence": [1.0, 0.5, ...]}]}   # optional, default 1 where finite
 
-Accepted aliases: ``stream_id`` for ``stream``; ``sensor_ns`` / ``t_ns`` for
-``sensor_time_ns`` or ``t`` in seconds; ``id`` for ``body_id``; ``positions`` for
-``joints``. Defaults: stream ``--stream-id``, seq = running count, sensor time =
-arrival time on the monotonic clock, skeleton ``kinect_v2``. This is also what
-``streamfix tap --json`` prints per frame, so a tap can be piped back into a service.
+Accepted aliases: ``stream_id`` for ``stream``; ``t_sensor_ns`` / ``sensor_ns`` /
+``t_ns`` for ``sensor_time_ns``, or ``t`` in seconds; ``id`` for ``body_id``;
+``positions`` for ``joints``; a whole joint may be ``null`` (missing). Defaults: stream
+``--stream-id``, seq = running count, sensor time = arrival time on the monotonic
+clock, skeleton ``kinect_v2``. Other keys are ignored. So the lines ``streamfix tap
+--json`` prints can be piped back into a service; its skeleton lines (``"type":
+"skeleton"`` with ``skeleton``, ``joint_names``, ``bones``, ``rate_hz``) announce a
+skeleton outside the registry, as the wire's skeleton message does.
 
 Errors raise :class:`~streamfix.service.validate.BadInput` with a reason from
 :data:`~streamfix.service.validate.REASONS`.
@@ -39,7 +42,8 @@ import time
 import numpy as np
 
 from ..frames import BodyFrame, SkeletonFrame
-from ..skeletons import KINECT_V2
+from ..skeletons import KINECT_V2, Skeleton
+from ..transport.wire import SkeletonMessage
 from .validate import BadInput
 
 __all__ = ["parse_line", "parse_kinect_csv_line", "parse_json_line"]
@@ -96,7 +100,18 @@ def _first(obj: dict, *keys: str, default=None):
     return default
 
 
-def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame:
+def _skeleton_line(obj: dict, stream_id: str) -> SkeletonMessage:
+    try:
+        skeleton = Skeleton(str(obj["skeleton"]), tuple(obj["joint_names"]), tuple(tuple(b) for b in obj["bones"]))
+        rate = float(obj.get("rate_hz", 30.0))
+        if not (math.isfinite(rate) and rate > 0):
+            raise ValueError(f"rate_hz must be a positive number, got {rate}")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BadInput("invalid", f"JSON skeleton line is malformed: {exc!r}") from None
+    return SkeletonMessage(str(_first(obj, "stream", "stream_id", default=stream_id)), skeleton, rate)
+
+
+def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | SkeletonMessage:
     """One JSON-lines frame -> frame (see module docstring)."""
     try:
         obj = json.loads(line)
@@ -107,10 +122,12 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame:
         raise BadInput(reason, f"JSON line does not parse: {exc.msg} at column {exc.colno}") from None
     if not isinstance(obj, dict):
         raise BadInput("garbage", f"JSON line is a {type(obj).__name__}, expected an object")
+    if obj.get("type") == "skeleton":
+        return _skeleton_line(obj, stream_id)
     bodies_in = obj.get("bodies")
     if not isinstance(bodies_in, list):
         raise BadInput("invalid", "JSON frame has no 'bodies' list")
-    t_ns = _first(obj, "sensor_time_ns", "sensor_ns", "t_ns")
+    t_ns = _first(obj, "sensor_time_ns", "t_sensor_ns", "sensor_ns", "t_ns")
     if t_ns is None and "t" in obj:
         t_ns = float(obj["t"]) * 1e9
     if t_ns is None:
@@ -122,7 +139,8 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame:
             if joints is None:
                 raise BadInput("invalid", f"JSON body {i} has no 'joints'")
             pos = np.array(
-                [[np.nan if c is None else float(c) for c in row] for row in joints], dtype=np.float64
+                [[np.nan] * 3 if row is None else [np.nan if c is None else float(c) for c in row] for row in joints],
+                dtype=np.float64,
             ).reshape(len(joints), -1)
             if pos.ndim != 2 or (pos.size and pos.shape[1] != 3):
                 raise BadInput("invalid", f"JSON body {i}: joints must be [x, y, z] rows, got shape {pos.shape}")
@@ -148,7 +166,7 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame:
         raise BadInput("invalid", f"JSON frame has a malformed field: {exc}") from None
 
 
-def parse_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | None:
+def parse_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | SkeletonMessage | None:
     """Parse one stdin line (JSON or Kinect CSV); None for blank/comment lines."""
     text = line.strip()
     if not text or text.startswith("#"):
