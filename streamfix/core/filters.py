@@ -28,10 +28,13 @@ so the same defaults mean the same time span at 30 Hz and at 120 Hz.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import savgol_filter
+
+from .interpolate import interpolate_linear, observed_mask
 
 __all__ = [
     "OneEuroFilter",
@@ -45,16 +48,6 @@ __all__ = [
     "running_median",
     "odd_window",
 ]
-
-
-def _observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
-    finite = np.isfinite(positions).all(axis=-1)
-    if observed is None:
-        return finite
-    observed = np.asarray(observed, dtype=bool)
-    if observed.shape != finite.shape:
-        raise ValueError(f"observed must have shape {finite.shape}, got {observed.shape}")
-    return observed & finite
 
 
 def odd_window(window_s: float, rate_hz: float, minimum: int = 3) -> int:
@@ -108,7 +101,7 @@ class OneEuroFilter:
         x = np.asarray(positions, dtype=np.float64)
         if x.ndim != 2 or x.shape[1] != 3:
             raise ValueError(f"positions must be (J, 3), got {x.shape}")
-        obs = _observed_mask(x, observed)
+        obs = observed_mask(x, observed)
         n_joints = x.shape[0]
         if t is None:
             t = self._frame / self.rate_hz
@@ -151,7 +144,7 @@ def one_euro(
 ) -> np.ndarray:
     """Causal One Euro filter over ``(T, J, 3)``; missing joints hold the last output."""
     positions = np.asarray(positions, dtype=np.float64)
-    obs = _observed_mask(positions, observed)
+    obs = observed_mask(positions, observed)
     f = OneEuroFilter(rate_hz, min_cutoff, beta, d_cutoff)
     out = np.empty_like(positions)
     for t in range(positions.shape[0]):  # recursive: loops over frames, vectorised over joints
@@ -210,7 +203,7 @@ class HoltFilter:
         if x.ndim != 2 or x.shape[1] != 3:
             raise ValueError(f"positions must be (J, 3), got {x.shape}")
         n_joints = x.shape[0]
-        obs = _observed_mask(x, observed)
+        obs = observed_mask(x, observed)
         if self._count is None:
             self._count = np.zeros(n_joints, dtype=np.int64)
             self._raw = np.zeros((n_joints, 3))
@@ -265,7 +258,7 @@ def holt(
 ) -> np.ndarray:
     """Causal Kinect SDK Holt filter over ``(T, J, 3)`` (m); missing joints hold the last output."""
     positions = np.asarray(positions, dtype=np.float64)
-    obs = _observed_mask(positions, observed)
+    obs = observed_mask(positions, observed)
     f = HoltFilter(params)
     out = np.empty_like(positions)
     for t in range(positions.shape[0]):  # recursive: loops over frames, vectorised over joints
@@ -275,8 +268,6 @@ def holt(
 
 # --------------------------------------------------------------------------- offline filters
 def _fill_linear(positions: np.ndarray, obs: np.ndarray) -> np.ndarray:
-    from .interpolate import interpolate_linear
-
     filled, _ = interpolate_linear(positions, obs)
     return filled
 
@@ -295,7 +286,7 @@ def savgol(
     observed stays NaN. A polynomial of degree <= ``polyorder`` passes unchanged.
     """
     positions = np.asarray(positions, dtype=np.float64)
-    obs = _observed_mask(positions, observed)
+    obs = observed_mask(positions, observed)
     x = _fill_linear(positions, obs)
     n = x.shape[0]
     w = odd_window(window_s, rate_hz, minimum=polyorder + 2 if polyorder % 2 else polyorder + 1)
@@ -317,18 +308,15 @@ def running_median(positions: np.ndarray, window: int, observed: np.ndarray | No
     """
     x = np.asarray(positions, dtype=np.float64).copy()
     if observed is not None:
-        x[~_observed_mask(x, observed)] = np.nan
+        x[~observed_mask(x, observed)] = np.nan
     half = window // 2
     n = x.shape[0]
     pad = np.full((half,) + x.shape[1:], np.nan)
     xp = np.concatenate([pad, x, pad], axis=0)
     win = np.lib.stride_tricks.sliding_window_view(xp, window, axis=0)  # (T, ..., window)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(win, axis=-1)
+    with warnings.catch_warnings():  # all-NaN windows give NaN, silently
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(win, axis=-1)
     return med[:n]
 
 
@@ -347,6 +335,6 @@ def median_savgol(
     median window are filled linearly before the second pass.
     """
     positions = np.asarray(positions, dtype=np.float64)
-    obs = _observed_mask(positions, observed)
+    obs = observed_mask(positions, observed)
     med = running_median(positions, odd_window(median_window_s, rate_hz), obs)
     return savgol(med, rate_hz, None, window_s=window_s, polyorder=polyorder)

@@ -11,10 +11,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-__all__ = ["interpolate_linear", "interpolate_spline", "interpolate"]
+__all__ = ["interpolate_linear", "interpolate_spline", "interpolate", "observed_mask"]
 
 
-def _mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+    """``(T, J)`` (or ``(J,)``) bool: ``observed`` (None = all) and every coordinate finite."""
     finite = np.isfinite(positions).all(axis=-1)
     if observed is None:
         return finite
@@ -40,7 +41,7 @@ def interpolate_linear(
     x = np.asarray(positions, dtype=np.float64)
     if x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
-    obs = _mask(x, observed)
+    obs = observed_mask(x, observed)
     n, n_joints, _ = x.shape
     prev, nxt = _neighbours(obs)
     has_prev, has_next = prev >= 0, nxt < n
@@ -70,7 +71,7 @@ def interpolate_spline(
     """
     x = np.asarray(positions, dtype=np.float64)
     lin, filled = interpolate_linear(x, observed)
-    obs = _mask(x, observed)
+    obs = observed_mask(x, observed)
     n = x.shape[0]
     t = np.arange(n, dtype=np.float64)
     out = lin.copy()
