@@ -1,1 +1,13 @@
-"""Streaming layer: per-body ring buffers, windowed solving with overlap-add, the live fast path. No socket code."""
+"""Streaming layer: per-body ring buffers, windowed solving with overlap-add, the live fast path. No socket code.
+
+* :mod:`.ring` -- per-body ring buffer of the last W frames (O(1) push, window views).
+* :mod:`.live` -- the causal ``live`` path (Theil-Sen outlier gate, One Euro, bone projection).
+* :mod:`.engine` -- :class:`StreamEngine` / :class:`ThreadedStreamEngine`: frames in,
+  ``live`` and ``clean`` frames out (hop, lookahead, overlap-add, drops, bodies, degradation).
+* :mod:`.offline` -- :func:`clean_motion`: a whole motion through the same engine.
+"""
+from .engine import EngineConfig, StreamEngine, ThreadedStreamEngine
+from .live import LiveConfig
+from .offline import clean_motion
+
+__all__ = ["EngineConfig", "StreamEngine", "ThreadedStreamEngine", "LiveConfig", "clean_motion"]
