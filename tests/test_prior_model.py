@@ -142,3 +142,22 @@ def test_fill_long_gaps_fills_only_long_gaps_and_meets_the_ends(prior, shared_da
     step = np.linalg.norm(np.diff(pos[:, 7], axis=0), axis=-1).max()
     assert np.linalg.norm(filled[20, 7] - pos[19, 7]) < step + 0.03
     assert np.linalg.norm(filled[59, 7] - pos[60, 7]) < step + 0.03
+
+
+def test_solver_from_the_prior_needs_fewer_iterations_and_is_no_worse(prior, held_out):
+    from streamfix.core.alm import solve
+    from streamfix.prior.init import PRIOR_INIT_RHO_FACTOR, solver_params_for_prior_init
+
+    wins, masks, keep = held_out
+    gt, obs = wins[1], masks[1] & keep[1]
+    d = np.where(obs[..., None], gt, np.nan)
+    bones = KINECT_V2.bone_array
+    alone = solve(d, obs, bones)
+    params = solver_params_for_prior_init(d, obs)
+    # the penalty start is the solver's own cold-start rho0 times the documented factor
+    assert abs(params.rho0 / alone.state.rho0 - PRIOR_INIT_RHO_FACTOR) < 1e-6 * PRIOR_INIT_RHO_FACTOR
+    init = prior_initial_guess(d, obs, prior.rate_hz, prior=prior)
+    started = solve(d, obs, bones, params=params, init=init)
+    assert started.converged and started.iterations <= alone.iterations / 2
+    err = lambda x: np.sqrt(((x - gt) ** 2).sum(-1)[masks[1]].mean())  # noqa: E731
+    assert err(started.positions) <= err(alone.positions)

@@ -23,7 +23,7 @@ seen in the window, else the nearest observed joint along the skeleton's bones; 
 paper's "closest observed joint" baseline), ``prior_encode`` (D(E(Y))),
 ``prior_latent`` (D(z*), Eq. 1), ``yang`` (the ALM solver alone), ``yang_prior_init``
 (the solver initialised from D(z*), with its initial penalty raised to trust the
-initialisation, see ``PRIOR_INIT_RHO_FACTOR``), and ``streamfix`` (the default
+initialisation, see ``streamfix.prior.init.solver_params_for_prior_init``), and ``streamfix`` (the default
 pipeline ``streamfix.core.pipeline.clean_window``) and ``streamfix_prior_init`` (the
 same with ``init=`` D(z*)) when the pipeline is available. The prior
 methods return observed joints unchanged (fit tolerance 0, ``streamfix.prior.latent``).
@@ -47,19 +47,11 @@ __all__ = [
     "nearest_joint_fill",
     "score_prior_on_takes",
     "METHODS",
-    "PRIOR_INIT_RHO_FACTOR",
 ]
 
 METHODS = ("nearest_joint", "prior_encode", "prior_latent", "yang", "yang_prior_init", "streamfix", "streamfix_prior_init")
 DEFAULT_LEVELS = (25, 50)
 LIMB_PATTERNS = ("right_arm", "left_arm", "right_leg", "left_leg")
-# yang_prior_init starts the ALM penalties at this multiple of the cold-start rho0
-# (1.25/||D||_2): a good initial A needs less of the slow penalty ramp (rho_k = eta^k rho0),
-# as the solver's own warm start does (it restarts at rho_prev / eta^12, i.e. about
-# eta^17 rho0 after a ~29-iteration cold solve). Measured on the held-out windows at test
-# OTP 50 %: eta^8 -> 0.79x the iterations, eta^16 -> 0.53x, eta^20 -> 0.38x, with the
-# RMSE within 0.2 cm of eta^8's.
-PRIOR_INIT_RHO_FACTOR = 1.3**20
 
 
 def _graph_distances(n_joints: int, bones: np.ndarray) -> np.ndarray:
@@ -99,14 +91,10 @@ def drop_masks(n_windows: int, n_joints: int, window: int, pattern: str, level: 
 
 
 def _solver(d: np.ndarray, obs: np.ndarray, bones: np.ndarray, init: np.ndarray | None):
-    from streamfix.core.alm import SolverParams, _paper_layout, solve
+    from streamfix.core.alm import SolverParams, solve
+    from streamfix.prior.init import solver_params_for_prior_init
 
-    params = SolverParams()
-    if init is not None:
-        obs3 = np.broadcast_to(obs[..., None], d.shape)
-        centred = np.where(obs3, d - np.nanmean(np.where(obs3, d, np.nan), axis=(0, 1)), 0.0)
-        rho0 = 1.25 / max(np.linalg.norm(_paper_layout(centred), 2), 1e-12)
-        params = SolverParams(rho0=rho0 * PRIOR_INIT_RHO_FACTOR)
+    params = SolverParams() if init is None else solver_params_for_prior_init(d, obs)
     res = solve(np.where(obs[..., None], d, np.nan), obs, bones, params=params, init=init)
     return res.positions, res.iterations
 
