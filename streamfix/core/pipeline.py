@@ -204,6 +204,22 @@ def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
     return float(1.4826 * np.median(r)) if r.size else 0.0
 
 
+def _rigid_pairs(x: np.ndarray, obs: np.ndarray, rate_hz: float, k: int = 60) -> np.ndarray:
+    """For a marker set without bones: the ``k`` pairs whose distance varies least.
+
+    Ranked on the running median + Savitzky-Golay estimate (robust to the outliers the
+    ranking must not be fooled by), via :func:`streamfix.core.pca_gapfill.estimate_rigid_pairs`.
+    """
+    try:
+        from .pca_gapfill import estimate_rigid_pairs
+    except ImportError:  # pragma: no cover
+        return np.zeros((0, 2), dtype=np.intp)
+    if x.shape[1] < 2:
+        return np.zeros((0, 2), dtype=np.intp)
+    med = median_savgol(x, rate_hz, obs)
+    return estimate_rigid_pairs(med, obs, k=k, min_common=max(3, min(30, x.shape[0] // 2)))
+
+
 def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float) -> float:
     """Model-selection score (m): mean over bones of the median |l_t - median_t l|.
 
@@ -299,13 +315,14 @@ def clean_window(
 
     # stage 1: one robust fit per candidate window; keep the one whose bones stay rigid
     obs3 = np.repeat(obs[..., None], 3, axis=2)
+    rigid = bones if len(bones) else _rigid_pairs(x, obs, rate_hz)  # markers: pairs found in the data
     widths = sorted({max(cfg.h_min_frames, int(round(w * rate_hz))) for w in cfg.candidate_windows_s})
     best = None
     spreads = {}
     for h in widths:
         fit_h, resid_h, _ = robust_temporal_fit(x, prior, h, cfg.scales_m)
         est = np.where(obs3 & (np.abs(np.nan_to_num(resid_h, nan=np.inf)) <= cfg.outlier_threshold_m), x, fit_h)
-        spreads[h] = _bone_spread(est, obs, bones, cfg.min_bone_m)
+        spreads[h] = _bone_spread(est, obs, rigid, cfg.min_bone_m)
         if best is None or spreads[h] < spreads[best[0]]:
             best = (h, fit_h, resid_h)
     h, fit, resid = best
@@ -313,7 +330,7 @@ def clean_window(
         # the median's answer is unbiased for symmetric noise, however heavy: a fallback
         # for windows too short or too fast for any local fit to find the clean samples
         med = median_savgol(x, rate_hz, obs)
-        s_med = _bone_spread(med, obs, bones, cfg.min_bone_m)
+        s_med = _bone_spread(med, obs, rigid, cfg.min_bone_m)
         spreads["median_savgol"] = s_med
         if s_med < cfg.fallback_margin * spreads[h]:
             h, fit, resid = "median_savgol", med, np.where(obs3, x - med, np.nan)
