@@ -75,7 +75,7 @@ class ServiceMetrics:
         self.filled = r.counter(
             "streamfix_filled_frames_total", "Frames synthesised for sensor frames that never arrived."
         )
-        self.streams = r.gauge("streamfix_streams", "Streams seen so far.")
+        self.streams = r.gauge("streamfix_streams", "Streams with a running engine.")
         self.bodies = r.gauge("streamfix_bodies", "Bodies in the latest frame, summed over streams.")
         self.degraded = r.gauge("streamfix_degraded", "1 while any engine runs degraded (solver behind), else 0.")
         self.live_compute = r.histogram("streamfix_live_compute_seconds", "Engine time to produce a live frame.")
@@ -108,6 +108,7 @@ class _Stream:
     bodies: int = 0
     frames: int = 0
     late_seen: int = 0
+    last_seq: int | None = None
 
     def note_arrival(self, time_ns: int, arrival_ns: int) -> None:
         index = self.base_index + len(self.by_index)
@@ -217,14 +218,15 @@ class Service:
 
     def _stream_for(self, frame: SkeletonFrame, rate_hint: float | None) -> _Stream:
         st = self.streams.get(frame.stream_id)
-        if st is not None and st.skeleton.name == frame.skeleton:
-            return st
-        if st is not None:  # the stream switched skeleton: finish the old engine first
-            log.warning(
-                "stream %r switched skeleton %s -> %s: flushing and restarting its engine",
-                frame.stream_id, st.skeleton.name, frame.skeleton,
-            )
-            self._publish_outputs(st, self._engine_flush(st))
+        if st is not None:
+            if st.skeleton.name != frame.skeleton:
+                self._retire(st, f"switched skeleton {st.skeleton.name} -> {frame.skeleton}")
+            elif st.last_seq is not None and st.last_seq - int(frame.seq) > max(30, int(st.rate_hz)):
+                # seq jumped back by more than ~1 s: the sender restarted (the engine would
+                # otherwise skip every frame as late until seq caught up)
+                self._retire(st, f"restarted (seq {frame.seq} after {st.last_seq})")
+            else:
+                return st
         skeleton = self._skeletons.get(frame.skeleton) or get_skeleton(frame.skeleton)
         ann = self._announced.get(frame.stream_id)
         rate = rate_hint or (ann[1] if ann and ann[0].name == skeleton.name else None) or self.default_rate_hz
@@ -238,10 +240,18 @@ class Service:
         except Exception:
             st.lookahead = 0
         self.streams[frame.stream_id] = st
-        self.m.streams.set(len(self.streams))
         self.publisher.announce(frame.stream_id, skeleton, float(rate))
         log.info("new stream %r: skeleton %s (%d joints), %.3g Hz", frame.stream_id, skeleton.name, skeleton.n_joints, rate)
         return st
+
+    def _retire(self, st: _Stream, why: str) -> None:
+        """Flush and close a stream's engine (its pending frames still go out)."""
+        log.warning("stream %r %s: flushing its engine and starting a new one", st.stream_id, why)
+        self._publish_outputs(st, self._engine_flush(st))
+        close = getattr(st.engine, "close", None)
+        if close is not None:
+            close()
+        del self.streams[st.stream_id]
 
     def _handle_frame(self, item: Frame) -> None:
         frame = item.frame
@@ -271,6 +281,7 @@ class Service:
             return
         compute = time.perf_counter() - t0
         st.frames += 1
+        st.last_seq = int(frame.seq)
         st.bodies = len(frame.bodies)
         st.note_arrival(int(frame.sensor_time_ns), item.arrival_ns)
         if any(kind == "live" for kind, _ in outputs):
@@ -317,6 +328,7 @@ class Service:
             if delta > 0:
                 self.m.drops.inc(delta, topic=kind)
         self.m.bodies.set(sum(st.bodies for st in self.streams.values()))
+        self.m.streams.set(len(self.streams))
         degraded = False
         for st in self.streams.values():
             try:
@@ -333,7 +345,7 @@ class Service:
     def status_line(self) -> str:
         """One line: uptime, input rate, outputs, malformed, drops, bodies, latencies, degraded."""
         now = time.monotonic()
-        total_in = sum(st.frames for st in self.streams.values())
+        total_in = int(sum(self.m.frames_in.values().values()))
         t_prev, n_prev = self._last_status
         rate = (total_in - n_prev) / max(now - t_prev, 1e-9)
         self._last_status = (now, total_in)

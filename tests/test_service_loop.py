@@ -1,0 +1,105 @@
+"""The service loop in process: a scripted source, the real engine, a recording publisher."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from streamfix.frames import BodyFrame, SkeletonFrame
+from streamfix.io import read_motion
+from streamfix.service.engines import EngineOptions, engine_factory, parse_lookahead
+from streamfix.service.server import Service
+from streamfix.service.sources import Frame, Rejected
+
+
+class ScriptedSource:
+    def __init__(self, items, batch: int = 7) -> None:
+        self.items = list(items)
+        self.batch = batch
+        self.exhausted = False
+        self.closed = False
+
+    def poll(self, timeout_s: float):
+        out, self.items = self.items[: self.batch], self.items[self.batch:]
+        self.exhausted = not self.items
+        return out
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class RecordingPublisher:
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, SkeletonFrame]] = []
+        self.meta: list[str] = []
+        self.counters: dict = {}
+        self.drops: dict = {}
+        self.closed = False
+
+    def publish(self, kind, frame):
+        self.sent.append((kind, frame))
+        self.counters[kind] = self.counters.get(kind, 0) + 1
+        return True
+
+    def announce(self, stream_id, skeleton, rate_hz):
+        self.meta.append(stream_id)
+
+    def tick(self, now=None):
+        pass
+
+    def close(self):
+        self.closed = True
+
+
+@pytest.fixture(scope="module")
+def kinect(shared_data):
+    return read_motion(shared_data / "kinect_v2" / "Ges04_comehere.csv")
+
+
+def _frames(motion, seqs, stream="s"):
+    for n, i in enumerate(seqs):
+        yield Frame(SkeletonFrame(stream, int(i), int(round(motion.timestamps[n] * 1e9)), "kinect_v2",
+                                  [BodyFrame(0, motion.positions[n], motion.confidence[n])]), n * 1000)
+
+
+def test_a_restarted_sender_gets_a_new_engine_instead_of_being_skipped_as_late(kinect, caplog):
+    first, second = range(100), range(60)  # the sender restarts at seq 0
+    items = list(_frames(kinect, first)) + list(_frames(kinect.slice(100, 160), second))
+    pub = RecordingPublisher()
+    svc = Service(ScriptedSource(items), pub, engine_factory("streamfix", EngineOptions(threaded=False)),
+                  status_interval_s=0)
+    with caplog.at_level(logging.WARNING, logger="streamfix.service"):
+        assert svc.run() == 0
+    clean = [f for k, f in pub.sent if k == "clean" and not f.filled]
+    assert len(clean) == 160, "every frame of both sessions comes out on clean"
+    assert [f.sensor_time_ns for f in clean] == [it.frame.sensor_time_ns for it in items]
+    assert any("restarted (seq 0 after 99)" in r.getMessage() for r in caplog.records)
+    assert svc.m.late.value() == 0
+    assert pub.closed and svc.source.closed
+
+
+def test_rejected_items_are_counted_and_logged_once_each(kinect, caplog):
+    items = list(_frames(kinect, range(20)))
+    items.insert(5, Rejected("garbage", "x"))
+    items.insert(9, Rejected("truncated", "y"))
+    bad = SkeletonFrame("s", 999, 0, "kinect_v2", [BodyFrame(0, np.zeros((3, 3)), np.ones(3))])
+    items.insert(12, Frame(bad, 0))
+    pub = RecordingPublisher()
+    svc = Service(ScriptedSource(items), pub, engine_factory("passthrough", EngineOptions()), status_interval_s=0)
+    with caplog.at_level(logging.WARNING, logger="streamfix.service"):
+        svc.run()
+    assert [f.seq for k, f in pub.sent if k == "live"] == list(range(20))
+    for reason in ("garbage", "truncated", "wrong_joint_count"):
+        assert svc.m.malformed.value(reason=reason) == 1
+        assert sum(f"({reason})" in r.getMessage() for r in caplog.records) == 1
+    assert "malformed 3" in svc.status_line()
+
+
+def test_lookahead_argument_takes_seconds_or_frames():
+    assert parse_lookahead("0.5") == (0.5, None)
+    assert parse_lookahead("0.25s") == (0.25, None)
+    assert parse_lookahead("15f") == (None, 15)
+    for bad in ("x", "-1", "-2f", "nan"):
+        with pytest.raises(ValueError, match="--lookahead"):
+            parse_lookahead(bad)
