@@ -98,7 +98,23 @@ def make_frames(bodies, n_frames: int) -> list[SkeletonFrame]:
     return frames
 
 
+class CpuTimed:
+    """Wraps a window solver; records each call's CPU time on the calling thread (s)."""
+
+    def __init__(self, solver) -> None:
+        self.solver = solver
+        self.cpu: list[float] = []
+
+    def __call__(self, *args, **kwargs):
+        c0 = time.thread_time()
+        try:
+            return self.solver(*args, **kwargs)
+        finally:
+            self.cpu.append(time.thread_time() - c0)
+
+
 def run_sync(frames, solver, cfg) -> dict:
+    solver = CpuTimed(solver)
     engine = StreamEngine(KINECT_V2, cfg, solver)
     t0, c0 = time.perf_counter(), time.thread_time()
     n_clean = 0
@@ -109,7 +125,7 @@ def run_sync(frames, solver, cfg) -> dict:
     wall = time.perf_counter() - t0
     m = engine.metrics()
     assert n_clean == len(frames), f"clean frames {n_clean} != input {len(frames)}"
-    return {"elapsed": cpu, "wall": wall, "metrics": m}
+    return {"elapsed": cpu, "wall": wall, "metrics": m, "solve_cpu": np.asarray(solver.cpu)}
 
 
 def live_latency(bodies, n_frames: int, cfg: EngineConfig) -> dict:
@@ -194,8 +210,9 @@ def main() -> int:
             "bodies_wall": body_seconds / best["wall"],
             "live_p50": m["live_time"]["p50_s"],
             "live_p99": m["live_time"]["p99_s"],
-            "clean_p50": m["solve_time"]["p50_s"],
-            "clean_p99": m["solve_time"]["p99_s"],
+            "clean_p50": float(np.percentile(best["solve_cpu"], 50)),  # CPU time per window
+            "clean_p99": float(np.percentile(best["solve_cpu"], 99)),
+            "clean_wall_p99": m["solve_time"]["p99_s"],
             "windows": m["windows_solved"],
             "elapsed": best["elapsed"],
         }
@@ -206,15 +223,16 @@ def main() -> int:
           f"(real Kinect v2 recordings), window {cfg.window}, hop {cfg.hop}, lookahead {cfg.lookahead} "
           f"frames ({cfg.latency_s * 1000:.0f} ms), OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, "
           f"best of {args.repeats}")
-    hdr = (f"{'engine (synchronous)':<22}{'bodies@30Hz/core':>18}{'(by wall time)':>16}{'clean p50 ms':>14}"
-           f"{'clean p99 ms':>14}{'windows':>9}")
+    hdr = (f"{'engine (synchronous)':<22}{'bodies@30Hz/core':>18}{'(by wall time)':>16}{'window p50 ms':>15}"
+           f"{'window p99 ms':>15}{'(wall p99)':>12}{'windows':>9}")
     print(hdr)
     print("-" * len(hdr))
     for name, r in rows.items():
-        print(f"{name:<22}{r['bodies_per_core']:>18.1f}{r['bodies_wall']:>16.1f}{r['clean_p50'] * 1e3:>14.1f}"
-              f"{r['clean_p99'] * 1e3:>14.1f}{r['windows']:>9d}")
+        print(f"{name:<22}{r['bodies_per_core']:>18.1f}{r['bodies_wall']:>16.1f}{r['clean_p50'] * 1e3:>15.1f}"
+              f"{r['clean_p99'] * 1e3:>15.1f}{r['clean_wall_p99'] * 1e3:>12.1f}{r['windows']:>9d}")
     print("bodies@30Hz/core = body-seconds of stream / CPU seconds the engine used on its one thread "
-          "(all windows solved inline); wall-time figure for reference on this shared machine")
+          "(all windows solved inline); window = one clean-window solve, CPU time; wall-time figures "
+          "for reference on this shared machine")
     d, b = rows["streamfix (default)"], rows["baseline savgol"]
     print(f"ratio default/baseline: throughput {d['bodies_per_core'] / b['bodies_per_core']:.2f}x, "
           f"window compute p99 {d['clean_p99'] / max(b['clean_p99'], 1e-9):.1f}x")
@@ -229,7 +247,7 @@ def main() -> int:
 
     checks = [
         ("live compute p99 < 2 ms (per body-frame, CPU time)", live["cpu_p99"] < TARGET_LIVE_P99_S),
-        ("clean window compute p99 < 100 ms beyond the lookahead", d["clean_p99"] < TARGET_CLEAN_P99_S),
+        ("clean window compute p99 < 100 ms beyond the lookahead (CPU time)", d["clean_p99"] < TARGET_CLEAN_P99_S),
         (f">= {TARGET_BODIES:g} bodies at 30 Hz per core with clean keeping up", d["bodies_per_core"] >= TARGET_BODIES),
     ]
     failed = False
