@@ -1,4 +1,8 @@
-"""``streamfix serve`` with its other sources: stdin (Kinect CSV / JSON lines) and the default replay."""
+"""``streamfix serve`` with its other sources: stdin (Kinect CSV / JSON lines) and the default replay.
+
+These check the sources, so the service runs its passthrough engine (the cleaning engine
+is exercised by test_e2e_kinect/quality/shutdown/bad_input).
+"""
 from __future__ import annotations
 
 import json
@@ -46,7 +50,7 @@ def test_stdin_csv_and_json_lines_all_come_out_and_bad_lines_are_counted(tmp_pat
                     "confidence": motion.confidence[10].tolist()}],
     })
     feed = lines[:20] + ["this is not a frame", lines[20][: len(lines[20]) // 3] + ",x"] + lines[20:]
-    proc, out, err = _start(["--source", "stdin", "--start-delay", "1.0", "--sync"], tmp_path, stdin=subprocess.PIPE)
+    proc, out, err = _start(["--source", "stdin", "--start-delay", "1.0", "--engine", "passthrough"], tmp_path, stdin=subprocess.PIPE)
     try:
         sub = connected_subscriber(out, (b"sf/clean/",))
         proc.stdin.write(("\n".join(feed) + "\n").encode())
@@ -68,7 +72,7 @@ def test_default_source_replays_the_demo_recording_and_exits(tmp_path):
     demo = sorted((PROJECT_ROOT / "replay_data").glob("*.csv"))
     assert demo, "replay_data/ holds the demo recordings"
     motion = read_motion(demo[0])
-    proc, out, err = _start(["--rate", "0", "--start-delay", "1.0", "--sync"], tmp_path)
+    proc, out, err = _start(["--rate", "0", "--start-delay", "1.0", "--engine", "passthrough"], tmp_path)
     try:
         sub = connected_subscriber(out, (b"sf/live/",))
         assert proc.wait(timeout=120) == 0, (tmp_path / "serve.stderr").read_text()
