@@ -4,8 +4,9 @@ The file is read with :func:`streamfix.io.read_motion`, passed frame by frame th
 the same :class:`~streamfix.streaming.engine.StreamEngine` that ``streamfix serve``
 runs (synchronous mode, so the result is deterministic and equals serve's ``clean``
 output), and written with :func:`streamfix.io.write_motion` (format from OUT's
-extension). Marker files without bones (C3D) first go through the gap filler
-(``streamfix.gapfill.fill_motion_gaps``) when it is installed. A progress bar is drawn
+extension). Marker files without bones (C3D), and files with a gap longer than one
+window, first go through the gap filler (``streamfix.gapfill.fill_motion_gaps``) when
+it is installed: a window solver cannot bridge a gap longer than its window. A progress bar is drawn
 on stderr when it is a terminal; one summary line goes to stdout.
 """
 from __future__ import annotations
@@ -77,6 +78,16 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _longest_gap(missing: np.ndarray) -> int:
+    """Longest run of consecutive missing frames of any joint, ``missing`` ``(T, J)`` bool."""
+    if missing.size == 0 or not missing.any():
+        return 0
+    count = np.cumsum(missing, axis=0)
+    # count at the last observed frame before t, carried forward
+    base = np.maximum.accumulate(np.where(missing, 0, count), axis=0)
+    return int((count - base).max())
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io import read_motion, write_motion
     from ..streaming.engine import EngineConfig
@@ -90,7 +101,9 @@ def run(args: argparse.Namespace) -> int:
     n_frames_in = motion.n_frames
     source = motion
     notes = []
-    if motion.skeleton.n_bones == 0 and not args.no_gapfill:
+    long_gap = _longest_gap(~motion.observed)
+    window = args.window if args.window is not None else EngineConfig(rate_hz=motion.rate_hz).window
+    if (motion.skeleton.n_bones == 0 or long_gap > window) and not args.no_gapfill:
         try:
             from ..gapfill import fill_motion_gaps  # type: ignore[attr-defined]
         except ImportError:
