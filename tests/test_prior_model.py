@@ -161,3 +161,16 @@ def test_solver_from_the_prior_needs_fewer_iterations_and_is_no_worse(prior, hel
     assert started.converged and started.iterations <= alone.iterations / 2
     err = lambda x: np.sqrt(((x - gt) ** 2).sum(-1)[masks[1]].mean())  # noqa: E731
     assert err(started.positions) <= err(alone.positions)
+
+
+def test_initial_guess_bridges_a_blackout_from_its_neighbours(prior, shared_data):
+    take = load_take(shared_data / "cmu_bvh" / "131_02.bvh")
+    pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, 30.0)
+    pos, obs = np.nan_to_num(pos[:300]), obs[:300].copy()
+    obs[100:230] = False  # the body is lost for 130 frames: some windows see nothing at all
+    guess = prior_initial_guess(pos, obs, 30.0, prior=prior)
+    assert np.isfinite(guess).all()
+    root = guess[:, 0]
+    # the blackout is bridged between the estimates around it, not sent to the sensor origin
+    lo, hi = np.minimum(root[99], root[230]) - 0.3, np.maximum(root[99], root[230]) + 0.3
+    assert np.all((root[100:230] >= lo) & (root[100:230] <= hi))

@@ -168,13 +168,18 @@ def _evaluate_take(
         keep = drop_masks(len(wins), wins.shape[2], w_len, pattern, level, rng)
         for method, fn in methods.items():
             sq, sq_drop, n_all, n_drop, ajes, abes, jits, iters, times = 0.0, 0.0, 0, 0, [], [], [], [], []
+            errors: list[str] = []
             for w in range(len(wins)):  # windows
                 gt, gt_obs = wins[w], wmask[w]
                 obs = gt_obs & keep[w]
                 if not obs.any():
                     continue
                 t0 = time.perf_counter()
-                out, it = fn(np.nan_to_num(gt), obs)
+                try:
+                    out, it = fn(np.nan_to_num(gt), obs)
+                except Exception as exc:  # one method failing on a window must not lose the others' results
+                    errors.append(f"{type(exc).__name__}: {exc}")
+                    continue
                 times.append(1e3 * (time.perf_counter() - t0))
                 iters.append(it)
                 err2 = ((out - np.nan_to_num(gt)) ** 2).sum(-1)
@@ -187,6 +192,13 @@ def _evaluate_take(
                 ajes.append(metrics.aje(out, truth))
                 abes.append(metrics.abe(out, truth, bones))
                 jits.append(metrics.jitter(out))
+            if errors and not n_all:
+                records.append({"file": name, "rate_hz": float(rate_hz), "protocol": "occlusion", "pattern": pattern,
+                                "level": float(level), "test_otp": 100.0 - float(level), "method": method,
+                                "aje_m": float("nan"), "abe_m": float("nan"), "jitter": float("nan"),
+                                "rmse_m": float("nan"), "rmse_dropped_m": float("nan"),
+                                "failed_windows": len(errors), "error": errors[0]})
+                continue
             if not n_all:
                 continue
             records.append(
@@ -206,6 +218,7 @@ def _evaluate_take(
                     "iterations": float(np.mean(iters)),
                     "time_ms": float(np.mean(times)),
                     "windows": len(times),
+                    **({"failed_windows": len(errors), "error": errors[0]} if errors else {}),
                 }
             )
     return records

@@ -59,18 +59,24 @@ def prior_available(n_joints: int, prior: Prior | None = None) -> bool:
     return p.n_joints == n_joints
 
 
-def overlap_add(windows: np.ndarray, starts: np.ndarray, n_frames: int) -> np.ndarray:
-    """Blend (W, T, J, 3) windows placed at ``starts`` into (n_frames, J, 3) with sin^2 weights."""
+def overlap_add(windows: np.ndarray, starts: np.ndarray, n_frames: int, valid: np.ndarray | None = None) -> np.ndarray:
+    """Blend (W, T, J, 3) windows placed at ``starts`` into (n_frames, J, 3) with sin^2 weights.
+
+    ``valid`` (W,) bool drops windows; frames no valid window covers are NaN.
+    """
     w_len = windows.shape[1]
     weight = np.sin(np.pi * (np.arange(w_len) + 0.5) / w_len) ** 2 + 1e-3
+    win_w = np.ones(len(starts)) if valid is None else np.asarray(valid, dtype=np.float64)
     idx = (starts[:, None] + np.arange(w_len)[None, :]).ravel()
     keep = idx < n_frames
     acc = np.zeros((n_frames,) + windows.shape[2:])
     wsum = np.zeros(n_frames)
-    wts = np.broadcast_to(weight, (len(starts), w_len)).ravel()[keep]
+    wts = (win_w[:, None] * weight[None, :]).ravel()[keep]
     np.add.at(acc, idx[keep], windows.reshape((-1,) + windows.shape[2:])[keep] * wts[:, None, None])
     np.add.at(wsum, idx[keep], wts)
-    return acc / np.maximum(wsum, 1e-12)[:, None, None]
+    out = acc / np.maximum(wsum, 1e-300)[:, None, None]
+    out[wsum <= 0] = np.nan
+    return out
 
 
 def _resample_full(x: np.ndarray, rate_in: float, rate_out: float, n_out: int) -> np.ndarray:
@@ -99,8 +105,9 @@ def prior_initial_guess(
     prior's length at half-window hop (a shorter motion is one window padded with
     unobserved frames), each window reconstructed (``method``: ``"latent"`` = D(z*),
     ``"encode"`` = D(E(Y))), blended by overlap-add and resampled back. With
-    ``keep_observed`` observed joints keep their input values. A motion with nothing
-    observed is returned as all-NaN.
+    ``keep_observed`` observed joints keep their input values. Windows that saw fewer
+    than 3 joints are ignored and the frames only they covered are interpolated in time
+    between their neighbours' estimates. A motion with nothing observed is returned as all-NaN.
     """
     prior = prior or load_default_prior()
     x = np.asarray(positions, dtype=np.float64)
@@ -124,7 +131,15 @@ def prior_initial_guess(
         rec = fit_latent(prior, wins, masks, max_iter=max_iter).decoded
     else:
         rec = prior.reconstruct(wins, masks)
-    est = overlap_add(rec, starts, xr.shape[0])
+    # a window that saw too little of the body (fewer than 3 joints ever) says nothing about it
+    valid = masks.any(axis=1).sum(axis=1) >= 3
+    if not valid.any():
+        valid = masks.any(axis=(1, 2))
+    est = overlap_add(rec, starts, xr.shape[0], valid)
+    if np.isnan(est).any():  # frames no valid window covers: linear interpolation in time
+        from streamfix.core.interpolate import interpolate_linear
+
+        est = interpolate_linear(est, np.isfinite(est).all(axis=-1))[0]
     if xr.shape[0] != n:
         est = _resample_full(est, prior.rate_hz, rate_hz, n)
     if keep_observed:
