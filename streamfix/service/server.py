@@ -6,9 +6,11 @@ their own daemon threads; the engine may solve windows on its own worker):
 1. ``source.poll(<=10 ms)`` gives raw frames, skeleton announcements and rejected
    messages. A rejected or invalid message is counted under its reason
    (``streamfix_malformed_total{reason}``), logged in one line, and skipped.
-2. A valid frame is published on ``raw``, pushed into its stream's engine (created on
-   the stream's first frame, from its skeleton and rate), and whatever the engine
-   returns goes out on ``live`` / ``clean``. Outputs the engine finishes in the
+2. A valid frame is pushed into its stream's engine (created on the stream's first
+   frame, from its skeleton and rate), passed through on ``raw``, and whatever the
+   engine returns goes out on ``live`` / ``clean``. A stream whose skeleton changes,
+   or whose ``seq`` jumps back by more than a second's worth (the sender restarted),
+   has its engine flushed and replaced. Outputs the engine finishes in the
    background are collected with ``engine.poll()`` on every turn.
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
    one-line status goes to stderr every ``status_interval_s``.
@@ -271,8 +273,6 @@ class Service:
         except BadInput as exc:
             self._reject(exc.reason, exc.detail)
             return
-        self.m.frames_in.inc(stream=frame.stream_id)
-        self.publisher.publish("raw", frame)
         t0 = time.perf_counter()
         try:
             outputs = st.engine.push(frame)
@@ -280,11 +280,13 @@ class Service:
             self._reject("invalid", str(exc))
             return
         compute = time.perf_counter() - t0
+        self.m.frames_in.inc(stream=frame.stream_id)
+        self.publisher.publish("raw", frame)
         st.frames += 1
         st.last_seq = int(frame.seq)
         st.bodies = len(frame.bodies)
-        st.note_arrival(int(frame.sensor_time_ns), item.arrival_ns)
-        if any(kind == "live" for kind, _ in outputs):
+        if outputs:  # an accepted frame always has its live output; a late one has none
+            st.note_arrival(int(frame.sensor_time_ns), item.arrival_ns)
             self.m.live_compute.observe(compute)
         self._publish_outputs(st, outputs)
 
