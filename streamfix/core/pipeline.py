@@ -15,10 +15,12 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    redescending M-estimator finds and the l1 term does not. Sensor confidence
    multiplies the weights (Kinect *inferred* joints count half: low confidence, not
    missing). **Window by rigidity:** the fit is run for each candidate window
-   (``candidate_windows_s``, 2-9 frames at 30 Hz, 8-36 at 120 Hz) and, as a fallback
-   for windows too short or fast for any local fit, the running median + Savitzky-Golay
-   (unbiased for symmetric noise however heavy); the candidate whose bone lengths vary
-   least over time (median absolute deviation, :func:`_bone_spread`) wins. A skeleton's
+   (``candidate_windows_s``, 2-9 frames at 30 Hz, 8-36 at 120 Hz); further candidates,
+   for windows too short or fast for any local fit, are the running median +
+   Savitzky-Golay (unbiased for symmetric noise however heavy) and the best fit blended
+   with it where the fit's inlier support is below ``blend_support`` of a full window.
+   The candidate whose bone lengths vary least over time (median absolute deviation,
+   :func:`_bone_spread`; for marker sets the most rigid marker pairs) wins. A skeleton's
    bones are rigid, so this needs no ground truth: a fit that follows the clean samples
    keeps them constant, one that chased corrupted samples does not. Ties go to the
    shortest window (least bias).
@@ -61,10 +63,12 @@ level      120 Hz streamfix  30 Hz streamfix  30 Hz yang       30 Hz med+SG
 Gaps at 30 Hz, gap MAE 10 % / 20 %: 0.038 / 0.034 and 0.018 / 0.028 m (linear
 0.17 / 0.21 and 0.06 / 0.10 m; spline 0.15 / 0.16 and 0.07 / 0.16 m). Kinect v2
 files: jitter after/before 0.17-0.22 (median_savgol 0.23-0.26), bone-length CV
-after/before 0.005-0.12 (yang 0.44-0.61). Weak spot: short (27-48 frames), fast Xia
-clips at 30 Hz under 80 % corruption, where streamfix is about level with
-median_savgol (0.09-0.12 m vs 0.10 m; the six Xia takes at 120 Hz and at 5-20 % are
-all well below it).
+after/before 0.005-0.12 (yang 0.44-0.61). On the six Xia takes (not a bar) streamfix
+is below median_savgol at 5/20/80 % at both rates; its thinnest margin is 80 % at
+30 Hz on the short (27-48 frames), fast takes (0.089-0.100 m vs 0.098-0.105 m).
+On C3D markers (no bones; rigid pairs estimated) 85_02 at 80 %: 0.090 vs 0.100 m
+at 30 Hz but 0.052 vs 0.043 m at 120 Hz: skin markers are not rigid enough to rank
+candidates sharply.
 
 Arrays: positions ``(T, J, 3)`` metres (NaN = missing), confidence ``(T, J)`` in [0, 1].
 """
@@ -94,6 +98,7 @@ class PipelineConfig:
     h_min_frames: int = 2
     median_fallback: bool = True
     fallback_margin: float = 1.0
+    blend_support: float = 0.5
     min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
     inferred_weight: float = 0.5
@@ -202,6 +207,12 @@ def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
     fit, _ = _local_poly(y, w, h)
     r = np.abs(y - fit)[w > 0]
     return float(1.4826 * np.median(r)) if r.size else 0.0
+
+
+def _estimate(x: np.ndarray, obs3: np.ndarray, fit: np.ndarray, resid: np.ndarray, cfg: "PipelineConfig") -> np.ndarray:
+    """Stage 2 for one candidate: observed inliers kept, everything else from ``fit``."""
+    inlier = obs3 & (np.abs(np.nan_to_num(resid, nan=np.inf)) <= cfg.outlier_threshold_m)
+    return np.where(inlier, x, fit)
 
 
 def _rigid_pairs(x: np.ndarray, obs: np.ndarray, rate_hz: float, k: int = 60) -> np.ndarray:
@@ -320,21 +331,30 @@ def clean_window(
     best = None
     spreads = {}
     for h in widths:
-        fit_h, resid_h, _ = robust_temporal_fit(x, prior, h, cfg.scales_m)
-        est = np.where(obs3 & (np.abs(np.nan_to_num(resid_h, nan=np.inf)) <= cfg.outlier_threshold_m), x, fit_h)
-        spreads[h] = _bone_spread(est, obs, rigid, cfg.min_bone_m)
+        fit_h, resid_h, sup_h = robust_temporal_fit(x, prior, h, cfg.scales_m)
+        spreads[h] = _bone_spread(_estimate(x, obs3, fit_h, resid_h, cfg), obs, rigid, cfg.min_bone_m)
         if best is None or spreads[h] < spreads[best[0]]:
-            best = (h, fit_h, resid_h)
-    h, fit, resid = best
+            best = (h, fit_h, resid_h, sup_h)
+    h, fit, resid, sup = best
+    chosen = h
     if cfg.median_fallback:
         # the median's answer is unbiased for symmetric noise, however heavy: a fallback
-        # for windows too short or too fast for any local fit to find the clean samples
+        # for windows too short or too fast for any local fit to find the clean samples,
+        # alone or blended where the chosen fit has little inlier support
         med = median_savgol(x, rate_hz, obs)
-        s_med = _bone_spread(med, obs, rigid, cfg.min_bone_m)
-        spreads["median_savgol"] = s_med
-        if s_med < cfg.fallback_margin * spreads[h]:
-            h, fit, resid = "median_savgol", med, np.where(obs3, x - med, np.nan)
-    info.update(half_width_frames=h, bone_spread_m=spreads)
+        med_resid = np.where(obs3, x - med, np.nan)
+        spreads["median_savgol"] = _bone_spread(med, obs, rigid, cfg.min_bone_m)
+        kk = np.arange(-h, h + 1)
+        full = float(np.sum((1.0 - (np.abs(kk) / (h + 1)) ** 3) ** 3))  # kernel mass of a full window
+        a = np.clip(sup / (full * cfg.blend_support), 0.0, 1.0)
+        blend = np.where(np.isfinite(med), a * fit + (1.0 - a) * np.nan_to_num(med), fit)
+        blend_resid = np.where(obs3, x - blend, np.nan)
+        spreads["blend"] = _bone_spread(_estimate(x, obs3, blend, blend_resid, cfg), obs, rigid, cfg.min_bone_m)
+        if spreads["median_savgol"] < cfg.fallback_margin * min(spreads[h], spreads["blend"]):
+            chosen, fit, resid = "median_savgol", med, med_resid
+        elif spreads["blend"] < spreads[h]:
+            chosen, fit, resid = "blend", blend, blend_resid
+    info.update(half_width_frames=h, estimator=chosen, bone_spread_m=spreads)
 
     # stage 2: outlying coordinates take the robust fit
     outlier = obs3 & (np.abs(np.nan_to_num(resid, nan=np.inf)) > cfg.outlier_threshold_m)
