@@ -27,7 +27,15 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
 2. **Outliers become missing.** An observed entry whose residual exceeds
    ``outlier_threshold_m`` is replaced by the robust fit (the protocol's noise is
    per coordinate, so this acts per coordinate); the rest keep their observed value.
-3. **Solver for what is missing.** Joint-frames with no observation (gaps) are
+3. **Noise-matched smoothing.** What is left after outlier removal is either motion
+   detail (keep it) or white sensor noise (smooth it). The two are told apart by how
+   the robust scale of local-quadratic residuals grows with the window: white noise
+   gives nearly the same scale at half-widths 2 and 4 frames (ratio ~1.3-1.6 on all
+   our Kinect files), fitting real motion leaves a bias growing like h^4 (ratio 2-4 on
+   clean or lightly corrupted mocap). When the ratio is below ``white_noise_ratio``
+   and the scale above ``smooth_floor_m``, every observed sample is replaced by the
+   weighted local quadratic over ``smooth_window_s`` (zero lag, matched to the rate).
+4. **Solver for what is missing.** Joint-frames with no observation (gaps) are
    recovered by :func:`streamfix.core.alm.solve` (mode ``solver_mode``, low rank +
    isometry [+ wavelet]) run on the cleaned window, where spatial correlation across
    joints beats temporal interpolation over 10-60 frame gaps. The solver's offset from
@@ -37,14 +45,6 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    missing: run after outlier removal on complete data the solver changed AJE by
    -5 % .. +400 % (it only helps a little at 80 %), and run on the raw input from the
    robust estimate as ``init`` it walks back to its own optimum (0.175 m at 80 %).
-4. **Noise-matched smoothing.** What is left after outlier removal is either motion
-   detail (keep it) or white sensor noise (smooth it). The two are told apart by how
-   the robust scale of local-quadratic residuals grows with the window: white noise
-   gives nearly the same scale at half-widths 2 and 4 frames (ratio ~1.3-1.6 on all
-   our Kinect files), fitting real motion leaves a bias growing like h^4 (ratio 2-4 on
-   clean or lightly corrupted mocap). When the ratio is below ``white_noise_ratio``
-   and the scale above ``smooth_floor_m``, every observed sample is replaced by the
-   weighted local quadratic over ``smooth_window_s`` (zero lag, matched to the rate).
 5. **Bone-length projection.** A few Gauss-Newton steps of the isometry energy
    (Eq. 20 with Z2 = 0, anchor = the window) pull every bone to its length (given, or
    the median over the window's confident frames), which the paper's model does only
@@ -102,13 +102,13 @@ class PipelineConfig:
     min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
     inferred_weight: float = 0.5
-    # stage 3: solver for missing joint-frames
+    # stage 4: solver for missing joint-frames
     use_solver: bool = True
     solver_mode: str = "li"
     solver_max_iter: int = 300
     solver_tol: float = 1e-5
     boundary_correction: bool = True
-    # stage 4: smoothing matched to the noise level and rate
+    # stage 3: smoothing matched to the noise level and rate
     smooth_floor_m: float = 1e-4
     white_noise_ratio: float = 1.8
     smooth_window_s: float = 0.5
@@ -124,9 +124,10 @@ class WindowResult:
 
     positions ``(T, J, 3)`` m; recovered ``(T, J)`` True where a joint-frame was not
     observed or had a coordinate replaced as an outlier; state: the solver state (None
-    when the solver was not run); iterations/converged: the solver's (or the robust
-    stage's IRLS pass count / True when the solver was not needed); info: measured
-    quantities (contamination, window half-width, noise sigma, ...).
+    when the solver was not run, i.e. nothing was missing); iterations/converged: the
+    solver's (0 / True when it was not needed); info: what was measured and chosen
+    (candidate bone spreads, chosen estimator and window, outlier fraction, noise
+    scales, smoothing window, bone lengths).
     """
 
     positions: np.ndarray
@@ -361,7 +362,7 @@ def clean_window(
     cleaned = np.where(obs3 & ~outlier, x, fit)
     info["outlier_fraction"] = info["contamination"] = float(outlier[obs3].mean()) if obs3.any() else 0.0
 
-    # stage 4: is what is left white sensor noise (smooth it) or motion detail (keep it)?
+    # stage 3: is what is left white sensor noise (smooth it) or motion detail (keep it)?
     wc = np.repeat(prior, 3, axis=1).reshape(n_frames, -1)
     yc = np.where(obs3, cleaned, 0.0).reshape(n_frames, -1)
     s_small, s_large = (_residual_scale(yc, wc, hh) for hh in (2, 4))
@@ -373,7 +374,7 @@ def clean_window(
         cleaned = np.where(obs3, sm.reshape(x.shape), cleaned)
         info["smooth_half_width_frames"] = hs
 
-    # stage 3: missing joint-frames from the solver (or robust fit / interpolation)
+    # stage 4: missing joint-frames from the solver (or linear interpolation)
     missing = ~obs
     iterations, converged, out_state = 0, True, None
     if missing.any():
