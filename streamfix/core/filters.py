@@ -17,7 +17,11 @@ output for it (NaN if it was never seen) and resume when it returns.
   MaxDeviationRadius 0.04 m}`` ("Some smoothing with little latency (defaults)",
   Kinect for Windows SDK 1.8 reference, NUI_TRANSFORM_SMOOTH_PARAMETERS,
   https://learn.microsoft.com/en-us/previous-versions/windows/kinect-1.8/hh855623(v=ieb.10);
-  behaviour: "Joint Filtering", .../kinect-1.8/jj131024(v=ieb.10)). The update
+  behaviour: "Joint Filtering", .../kinect-1.8/jj131024(v=ieb.10)). That page is
+  inconsistent about Prediction: its member list says "the default value is 0.0",
+  its example set labelled "(defaults)" uses 0.5; we follow the labelled set (the
+  other four values agree) -- pass ``HoltParams(prediction=0.0)`` for the other
+  reading. The update
   equations follow the SDK's sample ``KinectJointFilter.cpp`` (``FilterDoubleExponential``),
   including its rule that *inferred* joints use twice the two radii.
 * :func:`savgol` -- Savitzky-Golay (``scipy.signal.savgol_filter``) along time.
