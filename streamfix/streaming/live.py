@@ -41,6 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.filters import HoltFilter as _HOLT
+
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
 
 
@@ -153,57 +155,15 @@ def _nanmedian0(a: np.ndarray) -> np.ndarray:
     return np.where(n > 0, med, np.nan)
 
 
-class _OneEuro:
-    """Minimal vectorised One Euro (used only if streamfix.core.filters is unavailable)."""
-
-    def __init__(self, rate_hz: float, min_cutoff: float, beta: float, d_cutoff: float) -> None:
-        self.rate_hz, self.min_cutoff, self.beta, self.d_cutoff = rate_hz, min_cutoff, beta, d_cutoff
-        self._x = None
-        self._dx = None
-        self._t = None
-
-    @staticmethod
-    def _alpha(cutoff, dt):
-        tau = 1.0 / (2.0 * np.pi * cutoff)
-        return 1.0 / (1.0 + tau / dt)
-
-    def step(self, x: np.ndarray, observed: np.ndarray | None = None, t: float | None = None) -> np.ndarray:
-        obs = np.isfinite(x).all(axis=1) if observed is None else observed & np.isfinite(x).all(axis=1)
-        if self._x is None:
-            self._x = np.where(obs[:, None], x, np.nan)
-            self._dx = np.zeros_like(x)
-            self._t = np.full(x.shape[0], t if t is not None else 0.0)
-            return self._x.copy()
-        first = obs & ~np.isfinite(self._x).all(axis=1)
-        dt = np.maximum(t - self._t, 1e-6)[:, None]
-        dx = (x - self._x) / dt
-        a_d = self._alpha(self.d_cutoff, dt)
-        dx_hat = a_d * dx + (1 - a_d) * self._dx
-        a = self._alpha(self.min_cutoff + self.beta * np.abs(dx_hat), dt)
-        new = a * x + (1 - a) * self._x
-        upd = obs & ~first
-        self._x[upd] = new[upd]
-        self._dx[upd] = dx_hat[upd]
-        self._x[first] = x[first]
-        self._dx[first] = 0.0
-        self._t[obs] = t
-        return self._x.copy()
-
-
 def _make_filter(cfg: LiveConfig, rate_hz: float):
+    """The low-pass stage: streaming filters of :mod:`streamfix.core.filters`."""
+    from streamfix.core.filters import HoltFilter, OneEuroFilter
+
     if cfg.filter == "none":
         return None
-    try:
-        from streamfix.core import filters as core_filters
-    except ImportError:  # pragma: no cover - core filters not present
-        core_filters = None
     if cfg.filter == "holt":
-        if core_filters is None or not hasattr(core_filters, "HoltFilter"):
-            raise ValueError("live filter 'holt' needs streamfix.core.filters.HoltFilter")
-        return core_filters.HoltFilter()
-    if core_filters is not None and hasattr(core_filters, "OneEuroFilter"):
-        return core_filters.OneEuroFilter(rate_hz, cfg.min_cutoff, cfg.beta, cfg.d_cutoff)
-    return _OneEuro(rate_hz, cfg.min_cutoff, cfg.beta, cfg.d_cutoff)
+        return HoltFilter()  # the Kinect SDK's default smoothing parameters
+    return OneEuroFilter(rate_hz, cfg.min_cutoff, cfg.beta, cfg.d_cutoff)
 
 
 class LivePath:
@@ -363,10 +323,10 @@ class LivePath:
         cfg = self.cfg
         joint_ok = np.isfinite(g).all(axis=1)
         if self._filter is not None:
-            if hasattr(self._filter, "rate_hz"):
-                y = self._filter.step(g, joint_ok, t)
-            else:
+            if isinstance(self._filter, _HOLT):
                 y = self._filter.step(g, joint_ok)
+            else:
+                y = self._filter.step(g, joint_ok, t)
         else:
             y = g.copy()
         y = np.where(np.isfinite(y), y, self._last)
