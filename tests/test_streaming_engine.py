@@ -366,3 +366,35 @@ def test_stalled_solver_and_a_departed_body_do_not_hold_the_stream(kinect):
     out += engine.flush(timeout=30)
     engine.close()
     assert [f.seq for f in split(out)[1]] == [f.seq for f in frames]
+
+
+def test_degraded_windows_get_fewer_solver_iterations(kinect):
+    """Level 1 of degradation halves the iteration cap handed to the window solver."""
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class Cfg:
+        max_iterations: int = 100
+
+    seen = []
+    release = threading.Event()
+
+    def solver(positions, confidence, bones, bone_lengths, rate_hz, config=Cfg(), state=None, init=None):
+        seen.append(config.max_iterations)
+        release.wait(timeout=60)
+        return savgol_solver(positions, confidence, bones, bone_lengths, rate_hz)
+
+    cfg = EngineConfig(rate_hz=30.0, max_iterations=40, max_pending_windows=100, max_clean_delay_s=100.0)
+    engine = ThreadedStreamEngine(KINECT_V2, cfg, solver)
+    frames = list(frames_of(kinect, uniform=True))
+    try:
+        for f in frames[:60]:
+            engine.push(f)
+        m = engine.metrics()
+        assert m["degraded"] and m["max_iterations"] < 40
+    finally:
+        release.set()
+    engine.flush(timeout=30)
+    engine.close()
+    assert seen[0] == 40  # the first window, before the solver fell behind
+    assert min(seen) <= 20  # later ones with the degraded cap
