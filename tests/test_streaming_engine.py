@@ -167,6 +167,7 @@ def test_frame_drops_are_filled_and_flagged(kinect):
             b = stream[i].bodies[0]
             assert b.body_id == 7
             assert b.recovered.all() and np.isfinite(b.positions).all()
+            assert (b.confidence == 0.5).all()  # SPEC: the service's estimate, not the sensor's
             assert stream[i].sensor_time_ns == frames[i].sensor_time_ns  # evenly re-timed
     # filled clean values lie between their neighbours' (solver bridged the gap)
     gap = body_array(clean[39:44])

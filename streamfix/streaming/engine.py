@@ -43,13 +43,16 @@ same body. After it, the body is finalised (its pending frames are emitted) and
 forgotten; if the same id returns later it starts a new timeline, re-using the bone
 lengths estimated for it before (``bodies_reidentified`` counts these). The clean and
 live output of a frame hold exactly the bodies of the input frame, in input order.
+Output confidence is the sensor's for observed joints and 0.5 (``RECOVERED_CONFIDENCE``,
+"estimated") for joints the engine recovered (``recovered`` True); a joint the engine
+has no value for at all (never seen) is NaN with confidence 0.
 
 Dropped sensor frames and sequence numbers
 ------------------------------------------
 A gap between consecutive sensor timestamps larger than ``drop_gap_factor`` (1.5)
 frame periods means the sensor dropped ``round(gap * rate_hz) - 1`` frames. The
 engine synthesises them (evenly spaced timestamps, the bodies of the frame before
-the gap, every joint ``recovered``, confidence 0) with ``SkeletonFrame.filled =
+the gap, every joint ``recovered``) with ``SkeletonFrame.filled =
 True`` and emits them on ``live`` and ``clean`` like any frame, so the output has no
 holes. Gaps longer than ``max_fill_s`` are a discontinuity, not a drop: the bodies
 are finalised and the stream restarts, nothing is synthesised.
@@ -331,6 +334,19 @@ class Histogram:
 
 
 # --------------------------------------------------------------------------- internals
+RECOVERED_CONFIDENCE = 0.5
+"""Confidence the engine gives a joint it recovered (protocol/SPEC.md: "its confidence is
+the service's estimate"): the sensor's own value for a guessed joint (inferred)."""
+
+
+def _output_confidence(pos: np.ndarray, conf_in: np.ndarray | None, recovered: np.ndarray) -> np.ndarray:
+    """Per-joint output confidence: the sensor's for observed joints,
+    :data:`RECOVERED_CONFIDENCE` for recovered ones, 0 where there is no position."""
+    finite = np.isfinite(pos).all(axis=1)
+    base = np.zeros(len(pos)) if conf_in is None else np.asarray(conf_in, dtype=np.float64)
+    return np.where(finite, np.where(recovered, RECOVERED_CONFIDENCE, base), 0.0)
+
+
 class _Job:
     """One window to solve for one body: frames [start, end) of its timeline."""
 
@@ -707,7 +723,7 @@ class StreamEngine:
                 body.absent = 0
                 body.last_present = n
                 live_bodies.append(
-                    BodyFrame(bid, y.copy(), conf.copy() if bf is not None else np.zeros(self.n_joints), rec.copy())
+                    BodyFrame(bid, y.copy(), _output_confidence(y, conf if bf is not None else None, rec), rec.copy())
                 )
                 self.live_hist.observe(time.perf_counter() - t0)
             else:
@@ -969,7 +985,7 @@ class StreamEngine:
                 g = body.g0 + n
                 pend = st.pending.get(g)
                 if pend is not None:
-                    conf = body.conf[k].copy()
+                    conf = _output_confidence(pos, body.conf[k], rec)
                     pend.slots[body.body_id] = BodyFrame(body.body_id, pos, conf, rec)
                     pend.missing -= 1
                     self.counters["joints_recovered"] += int(rec.sum())
