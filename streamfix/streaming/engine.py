@@ -31,6 +31,15 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
   body's newest frame is solved and the remaining frames are emitted with less
   lookahead.
 
+Each window's first ``W - L - 1`` frames are context only (already emitted); a frame's
+value comes from windows that saw between ``L + 1 - H`` and ``L`` frames of its future.
+Defaults (seconds, converted at ``rate_hz``): W 2 s, H 0.4 s, L 0.5 s = 60/12/15 frames
+at 30 Hz. Measured with the default window solver on CMU 131_01/131_02 at 30 Hz with
+10 / 20 % of entries corrupted by U(+-25 cm): clean AJE 0.8-1.25x that of cleaning the
+whole sequence at once; ``benchmarks/bench_streaming.py``: ~12.7 bodies at 30 Hz per
+core (CPU time), window compute p99 ~32 ms, live path p99 ~0.4 ms per body-frame.
+A shorter hop buys quality for compute (H 5: ~1.16x at 20 %, twice the solves).
+
 Offline cleaning is a pure function of the input sequence: in the synchronous mode
 (the default) nothing depends on timing, so the same input gives the same output.
 
