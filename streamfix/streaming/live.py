@@ -132,6 +132,8 @@ def project_bone_lengths(
     parent's displacement). Non-iterative: one pass over the tree depth.
     """
     out = positions.copy()
+    if not propagate and levels:  # independent bones: one vectorised step over the tree
+        levels = [np.concatenate(levels)] if len(levels) > 1 else levels
     for lv in levels:
         p, c = lv[:, 0], lv[:, 1]
         vec = positions[c] - positions[p]  # direction from the unprojected pose
@@ -174,6 +176,7 @@ class LivePath:
         self.n_joints = n_joints
         self.rate_hz = float(rate_hz)
         self.levels = tree_levels(bones, n_joints)
+        self._tree = [np.concatenate(self.levels)] if self.levels else []  # all tree bones at once
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
         self.reset()
@@ -331,7 +334,7 @@ class LivePath:
             y = g.copy()
         y = np.where(np.isfinite(y), y, self._last)
         if cfg.project and self.levels:
-            y = project_bone_lengths(y, self.levels, self._child_len, cfg.propagate)
+            y = project_bone_lengths(y, self.levels if cfg.propagate else self._tree, self._child_len, cfg.propagate)
         self._last = y
         recovered = ~valid | outlier.any(axis=1)
         return y, recovered
