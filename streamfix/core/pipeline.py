@@ -45,25 +45,31 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    missing: run after outlier removal on complete data the solver changed AJE by
    -5 % .. +400 % (it only helps a little at 80 %), and run on the raw input from the
    robust estimate as ``init`` it walks back to its own optimum (0.175 m at 80 %).
-5. **Bone-length projection.** A few Gauss-Newton steps of the isometry energy
-   (Eq. 20 with Z2 = 0, anchor = the window) pull every bone to its length (given, or
-   the median over the window's confident frames), which the paper's model does only
-   softly.
+5. **Bone-length projection.** Every bone is pulled to its length (given, or the
+   median over the window's confident outlier-free frames), which the paper's model
+   does only softly: Jacobi constraint iterations (position-based dynamics,
+   :func:`project_bone_lengths_pbd`) split each bone's length error between its ends
+   in proportion to their inverse confidence, so an *inferred* joint moves twice as
+   far as a tracked one. Measured against the Gauss-Newton step of Eq. (20) with
+   Z2 = 0 (:func:`project_bone_lengths`, ``projection="gauss_newton"``), which has no
+   line search and left Kinect bone CV at 0.01-0.12 of the input (more steps made it
+   worse on some files), 50 iterations reach 0.000-0.003 and lower AJE and ABE on
+   every CMU/Xia case tried.
 
 Measured (``benchmarks/bench_accuracy.py``, seed 0; AJE in m, CMU 131_01 / 131_02):
 
 =========  ================  ===============  ===============  ===============
 level      120 Hz streamfix  30 Hz streamfix  30 Hz yang       30 Hz med+SG
 =========  ================  ===============  ===============  ===============
-5 %        0.0001 / 0.0001   0.0006 / 0.0006  0.0033 / 0.0030  0.0063 / 0.0050
-20 %       0.0003 / 0.0003   0.0042 / 0.0028  0.0127 / 0.0090  0.0159 / 0.0109
-80 %       0.0197 / 0.0151   0.0651 / 0.0561  0.177 / 0.165    0.0969 / 0.0944
+5 %        0.0001 / 0.0001   0.0005 / 0.0006  0.0033 / 0.0030  0.0063 / 0.0050
+20 %       0.0003 / 0.0003   0.0040 / 0.0027  0.0127 / 0.0090  0.0159 / 0.0109
+80 %       0.0191 / 0.0145   0.0643 / 0.0538  0.177 / 0.165    0.0969 / 0.0944
 =========  ================  ===============  ===============  ===============
 
-Gaps at 30 Hz, gap MAE 10 % / 20 %: 0.038 / 0.034 and 0.018 / 0.028 m (linear
+Gaps at 30 Hz, gap MAE 10 % / 20 %: 0.037 / 0.031 and 0.017 / 0.024 m (linear
 0.17 / 0.21 and 0.06 / 0.10 m; spline 0.15 / 0.16 and 0.07 / 0.16 m). Kinect v2
-files: jitter after/before 0.17-0.22 (median_savgol 0.23-0.26), bone-length CV
-after/before 0.005-0.12 (yang 0.44-0.61). On the six Xia takes (not a bar) streamfix
+files: jitter after/before 0.18-0.22 (median_savgol 0.23-0.26), bone-length CV
+after/before 0.000-0.003 (yang 0.44-0.61). On the six Xia takes (not a bar) streamfix
 is below median_savgol at 5/20/80 % at both rates; its thinnest margin is 80 % at
 30 Hz on the short (27-48 frames), fast takes (0.089-0.100 m vs 0.098-0.105 m).
 On C3D markers (no bones; rigid pairs estimated) 85_02 at 80 %: 0.090 vs 0.100 m
@@ -114,6 +120,8 @@ class PipelineConfig:
     smooth_window_s: float = 0.5
     # stage 5: bone-length projection
     project_bones: bool = True
+    projection: str = "pbd"
+    projection_iterations: int = 50
     projection_steps: int = 4
     projection_gamma: float = 1e4
 
@@ -286,6 +294,47 @@ def project_bone_lengths(
     return N
 
 
+def project_bone_lengths_pbd(
+    positions: np.ndarray,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray,
+    iterations: int = 20,
+    inverse_mass: np.ndarray | None = None,
+) -> np.ndarray:
+    """Bone-length projection by Jacobi constraint iterations (position-based dynamics).
+
+    Per bone (i, j) with current vector u = n_i - n_j and target length l, the length
+    error (|u| - l) is split between its two ends along u in proportion to their
+    inverse masses ``inverse_mass`` ``(T, J)`` (a low-confidence joint moves more);
+    each joint moves by the mean of its bones' corrections. Vectorised over frames and
+    bones; unconditionally stable (every step shortens each violated constraint).
+    """
+    x = np.asarray(positions, dtype=np.float64).copy()
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    lengths = np.asarray(bone_lengths, dtype=np.float64)
+    keep = np.isfinite(lengths)
+    b, lengths = b[keep], lengths[keep]
+    if len(b) == 0 or iterations <= 0 or not np.isfinite(x).all():
+        return x
+    n_frames, n_joints, _ = x.shape
+    im = np.ones((n_frames, n_joints)) if inverse_mass is None else np.asarray(inverse_mass, dtype=np.float64)
+    i, j = b[:, 0], b[:, 1]
+    wi, wj = im[:, i], im[:, j]                                   # (T, B)
+    share_i = np.where(wi + wj > 0, wi / np.maximum(wi + wj, 1e-12), 0.5)
+    degree = np.bincount(np.concatenate([i, j]), minlength=n_joints).astype(np.float64)
+    degree = np.maximum(degree, 1.0)[None, :, None]
+    for _ in range(iterations):
+        u = x[:, i] - x[:, j]                                     # (T, B, 3)
+        norm = np.linalg.norm(u, axis=2)
+        err = np.where(norm > 1e-9, (norm - lengths) / np.maximum(norm, 1e-9), 0.0)
+        corr = u * err[..., None]                                 # the full length error along u
+        delta = np.zeros_like(x)
+        np.add.at(delta, (slice(None), i), -corr * share_i[..., None])
+        np.add.at(delta, (slice(None), j), corr * (1.0 - share_i)[..., None])
+        x += delta / degree
+    return x
+
+
 # --------------------------------------------------------------------------- the pipeline
 def clean_window(
     positions: np.ndarray,
@@ -401,7 +450,11 @@ def clean_window(
             bl = np.where(np.isfinite(bl), bl, estimate_bone_lengths(cleaned, bones))
         else:
             bl = np.asarray(bone_lengths, dtype=np.float64)
-        cleaned = project_bone_lengths(cleaned, bones, bl, cfg.projection_steps, cfg.projection_gamma)
+        if cfg.projection == "pbd":
+            inv_mass = 1.0 / np.maximum(np.where(obs, conf, 0.0), 0.25)  # inferred (0.5) moves 2x, missing 4x
+            cleaned = project_bone_lengths_pbd(cleaned, bones, bl, cfg.projection_iterations, inv_mass)
+        else:
+            cleaned = project_bone_lengths(cleaned, bones, bl, cfg.projection_steps, cfg.projection_gamma)
         info["bone_lengths"] = bl
 
     recovered = missing | outlier.any(axis=2)
