@@ -41,7 +41,7 @@ def test_clean_matches_offline_quality_and_live_cuts_jitter(tmp_path, shared_dat
         corrupted = truth.copy()
         corrupted.positions, _ = add_noise(gt, fraction, np.random.default_rng(seed))
         noisy[stream] = corrupted
-        write_motion(corrupted, tmp_path / f"{stream}.sfrec")
+        write_motion(corrupted, tmp_path / f"{stream}.sfrec", stream_id=stream)
 
     got = {s: {"live": [], "clean": []} for s in LEVELS}
     with serve(tmp_path, "--window", str(WINDOW), "--lookahead", "0.5", "--sync") as sp:

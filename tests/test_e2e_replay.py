@@ -27,7 +27,7 @@ def _receive(sub: Subscriber, n: int, timeout: float = 30.0):
 def test_replay_sends_skeleton_then_every_frame_of_any_format(tmp_path, shared_data, rel):
     if rel == "sfrec":  # the project's own recording format
         path = tmp_path / "take.sfrec"
-        write_motion(read_motion(shared_data / "kinect_v2" / "Ges02_balancinghands.csv"), path)
+        write_motion(read_motion(shared_data / "kinect_v2" / "Ges02_balancinghands.csv"), path, stream_id="take")
     else:
         path = shared_data / rel
     motion = read_motion(path)
@@ -77,3 +77,38 @@ def test_replay_of_an_unreadable_file_says_why(tmp_path):
     bad.write_text("1,2,3\n")
     proc = run_replay(bad, f"tcp://127.0.0.1:{free_port()}")
     assert proc.returncode == 2 and "broken.csv" in proc.stderr
+
+
+def test_replay_of_a_recorded_session_keeps_bodies_and_streams(tmp_path, shared_data):
+    from streamfix.frames import BodyFrame, SkeletonFrame
+    from streamfix.io.recording import RecordingWriter
+    from streamfix.skeletons import KINECT_V2
+
+    motion = read_motion(shared_data / "kinect_v2" / "Ges03_drawlines.csv")
+    path = tmp_path / "session.sfrec"
+    expected = {"camA": [], "camB": []}
+    with RecordingWriter(path) as w:
+        for s in expected:
+            w.write_skeleton(s, KINECT_V2, 30.0, recv_time_ns=0)
+        for i in range(40):
+            for s, n_bodies in (("camA", 3), ("camB", 2)):
+                bodies = [BodyFrame(b, motion.positions[i + b], motion.confidence[i + b]) for b in range(n_bodies)]
+                frame = SkeletonFrame(s, 100 + i, 5_000_000_000 + i * 33_333_333, "kinect_v2", bodies)
+                w.write_frame("raw", frame, recv_time_ns=0)
+                w.write_frame("clean", frame, recv_time_ns=0)  # another kind: not replayed
+                expected[s].append(frame)
+            if i == 20:  # a frame a service synthesised: not replayed
+                w.write_frame("raw", SkeletonFrame("camA", 999, 0, "kinect_v2", [], filled=True), recv_time_ns=0)
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
+    with Subscriber(endpoint, (b"sf/",), bind=True, socket_type=zmq.PULL) as sub:
+        rep = run_replay(path, endpoint, "--rate", "0")
+        assert rep.returncode == 0, rep.stderr
+        meta, frames = _receive(sub, 80, timeout=20)
+    assert {m.stream for m in meta} == {"camA", "camB"}
+    for s, want in expected.items():
+        got = [r.message for r in frames if r.stream == s]
+        assert all(r.kind == "raw" for r in frames)
+        assert [f.seq for f in got] == [f.seq for f in want]
+        assert [len(f.bodies) for f in got] == [len(f.bodies) for f in want]
+        np.testing.assert_allclose(got[7].bodies[1].positions, want[7].bodies[1].positions.astype(np.float32),
+                                   atol=1e-6, equal_nan=True)

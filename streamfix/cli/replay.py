@@ -1,9 +1,10 @@
 """``streamfix replay FILE --to ENDPOINT``: play a recording into a service as a live sensor.
 
-Reads any recording ``streamfix.io.read_motion`` understands (Kinect v2 CSV, BVH, C3D,
-the project's ``.sfrec``) and sends its frames as wire ``frame`` messages on
-``sf/raw/<stream>``, first announcing the skeleton with a ``skeleton`` message (so a
-skeleton outside the registry, e.g. a BVH hierarchy, decodes at the service).
+Reads any recording (Kinect v2 CSV, BVH, C3D through ``streamfix.io.read_motion``; the
+project's ``.sfrec`` frame by frame, keeping every body and stream) and sends its
+frames as wire ``frame`` messages on ``sf/raw/<stream>``, first announcing each
+stream's skeleton with a ``skeleton`` message (so a skeleton outside the registry, e.g.
+a BVH hierarchy, decodes at the service). See :mod:`streamfix.service.playback`.
 
 Socket: a **PUSH socket that connects** to ``--to``, which is the PULL endpoint a
 ``streamfix serve --source tcp://...`` binds. PUSH queues messages until the
@@ -46,19 +47,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import zmq
 
-    from ..service.playback import Pacer, load_recording, motion_frames
-    from ..service.sources import _stream_id_from_path
+    from ..service.playback import Pacer, open_playback
     from ..transport.zmq_io import FramePublisher
 
     if args.rate < 0 or math.isnan(args.rate):
         print(f"streamfix replay: --rate must be >= 0 (0 = as fast as possible), got {args.rate}", file=sys.stderr)
         return 2
     try:
-        motion = load_recording(args.file)
+        playback = open_playback(args.file, stream_id=args.stream_id, body_id=args.body_id)
     except (OSError, ValueError, RuntimeError) as exc:
         print(f"streamfix replay: cannot read {args.file}: {exc}", file=sys.stderr)
         return 2
-    stream_id = args.stream_id or _stream_id_from_path(args.file)
     stop = {"flag": False}
 
     def _stop(*_: object) -> None:
@@ -77,10 +76,9 @@ def run(args: argparse.Namespace) -> int:
     sent = 0
     t_start = time.monotonic()
     try:
-        pub.announce(stream_id, motion.skeleton, motion.rate_hz)
-        for t_rel, frame in motion_frames(motion, stream_id, body_id=args.body_id, loop=args.loop):
-            if stop["flag"]:
-                break
+        for stream_id, skeleton, rate_hz in playback.announce:
+            pub.announce(stream_id, skeleton, rate_hz)
+        for t_rel, frame in playback.frames(args.loop):
             wait = pacer.wait_time(t_rel)
             while wait > 0 and not stop["flag"]:
                 time.sleep(min(wait, 0.1))
@@ -94,8 +92,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         took = time.monotonic() - t_start
         print(
-            f"streamfix replay: sent {sent} frames of {args.file} as stream {stream_id!r} to {args.to} "
-            f"in {took:.2f} s ({motion.n_frames} frames, {motion.rate_hz:g} Hz, rate x{args.rate:g})",
+            f"streamfix replay: sent {sent} frames to {args.to} in {took:.2f} s, rate x{args.rate:g}: "
+            f"{playback.describe()}",
             file=sys.stderr,
         )
     return 0

@@ -18,8 +18,8 @@
     Kinect v2 CSV or JSON lines, one frame per line (see
     :mod:`streamfix.service.textin`). The stream ends at end of file.
 ``replay:FILE``
-    Any recording ``streamfix.io.read_motion`` reads (Kinect CSV, BVH, C3D,
-    ``.sfrec``), played at its own timing (``rate`` > 1 plays faster), optionally
+    Any readable recording (Kinect CSV, BVH, C3D, ``.sfrec`` with all its bodies and
+    streams), played at its own timing (``rate`` > 1 plays faster), optionally
     looped; see :mod:`streamfix.service.playback`.
 
 Every source offers ``poll(timeout_s) -> list[Item]`` (returns at most after
@@ -41,7 +41,7 @@ from typing import Union
 
 from ..frames import SkeletonFrame
 from ..skeletons import Skeleton
-from .playback import Pacer, load_recording, motion_frames
+from .playback import Pacer, open_playback
 from .textin import parse_line
 from .validate import BadInput
 
@@ -230,31 +230,25 @@ class ReplaySource:
 
     def __init__(self, path: str, *, rate: float = 1.0, loop: bool = False, stream_id: str | None = None) -> None:
         self.path = path
-        self.motion = load_recording(path)
-        if self.motion.n_frames == 0:
-            raise ValueError(f"recording {path} has no frames")
-        self.stream_id = stream_id or _stream_id_from_path(path)
+        self.playback = open_playback(path, stream_id=stream_id)
         self.rate = float(rate)
         self.loop = bool(loop)
-        self._frames = motion_frames(self.motion, self.stream_id, loop=loop)
+        self._frames = self.playback.frames(loop)
         self._pacer = Pacer(rate)
         self._next = next(self._frames, None)
         self.exhausted = self._next is None
         self._announced = False
-        self.skeletons = {self.motion.skeleton.name: self.motion.skeleton}
+        self.skeletons = {skel.name: skel for _, skel, _ in self.playback.announce}
 
     def describe(self) -> str:
         loop = ", looped" if self.loop else ""
-        return (
-            f"replay of {self.path} ({self.motion.n_frames} frames at {self.motion.rate_hz:g} Hz, "
-            f"skeleton {self.motion.skeleton.name}, rate x{self.rate:g}{loop})"
-        )
+        return f"replay of {self.playback.describe()}, rate x{self.rate:g}{loop}"
 
     def poll(self, timeout_s: float) -> list[Item]:
         items: list[Item] = []
         if not self._announced:
             self._announced = True
-            items.append(Announce(self.stream_id, self.motion.skeleton, self.motion.rate_hz))
+            items.extend(Announce(sid, skel, rate) for sid, skel, rate in self.playback.announce)
         if self._next is None:
             self.exhausted = True
             if timeout_s > 0 and not items:
@@ -266,7 +260,7 @@ class ReplaySource:
                 return items
             time.sleep(min(wait, timeout_s))
         while self._next is not None and self._pacer.wait_time(self._next[0]) <= 0 and len(items) < 256:
-            items.append(Frame(self._next[1], time.monotonic_ns(), self.motion.rate_hz))
+            items.append(Frame(self._next[1], time.monotonic_ns(), self.playback.rate_hz))
             self._next = next(self._frames, None)
         if self._next is None:
             self.exhausted = True
@@ -274,12 +268,6 @@ class ReplaySource:
 
     def close(self) -> None:
         self._frames.close()
-
-
-def _stream_id_from_path(path: str) -> str:
-    stem = Path(path).stem
-    safe = "".join(c if (c.isalnum() or c in "_.:-") else "_" for c in stem)[:64]
-    return safe or "replay"
 
 
 def default_replay_file(project_root: Path | None = None) -> Path:
