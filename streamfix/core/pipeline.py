@@ -322,16 +322,20 @@ def project_bone_lengths_pbd(
     wi, wj = im[:, i], im[:, j]                                   # (T, B)
     share_i = np.where(wi + wj > 0, wi / np.maximum(wi + wj, 1e-12), 0.5)
     degree = np.bincount(np.concatenate([i, j]), minlength=n_joints).astype(np.float64)
-    degree = np.maximum(degree, 1.0)[None, :, None]
+    rows = np.arange(len(b))
+    P = np.zeros((len(b), n_joints))
+    Q = np.zeros((len(b), n_joints))
+    P[rows, i] = 1.0
+    Q[rows, j] = 1.0
+    P /= np.maximum(degree, 1.0)[None, :]  # scatter to joints and average over their bones
+    Q /= np.maximum(degree, 1.0)[None, :]
     for _ in range(iterations):
         u = x[:, i] - x[:, j]                                     # (T, B, 3)
         norm = np.linalg.norm(u, axis=2)
         err = np.where(norm > 1e-9, (norm - lengths) / np.maximum(norm, 1e-9), 0.0)
         corr = u * err[..., None]                                 # the full length error along u
-        delta = np.zeros_like(x)
-        np.add.at(delta, (slice(None), i), -corr * share_i[..., None])
-        np.add.at(delta, (slice(None), j), corr * (1.0 - share_i)[..., None])
-        x += delta / degree
+        x -= np.tensordot(corr * share_i[..., None], P, axes=([1], [0])).transpose(0, 2, 1)
+        x += np.tensordot(corr * (1.0 - share_i)[..., None], Q, axes=([1], [0])).transpose(0, 2, 1)
     return x
 
 
