@@ -102,3 +102,20 @@ def test_window_choice_prefers_rigid_bones(cmu30):
     h = r.info["half_width_frames"]
     windows = {k: v for k, v in spreads.items() if isinstance(k, int)}
     assert h == min(k for k, v in windows.items() if v == min(windows.values()))
+
+
+def test_pbd_projection_reaches_lengths_and_moves_low_confidence_more():
+    from streamfix.core.pipeline import project_bone_lengths_pbd
+
+    rng = np.random.default_rng(4)
+    bones = np.array([[0, 1], [1, 2], [1, 3]])
+    target = np.array([0.3, 0.25, 0.4])
+    x = rng.normal(scale=0.3, size=(20, 4, 3))
+    inv_mass = np.ones((20, 4))
+    inv_mass[:, 2] = 2.0  # joint 2 inferred: half the confidence, twice the move
+    y = project_bone_lengths_pbd(x, bones, target, 200, inv_mass)
+    lengths = metrics.bone_lengths(y, bones)
+    assert np.abs(lengths - target).max() < 1e-4
+    move = np.linalg.norm(y - x, axis=2)
+    # on bone (1, 2) the inferred end takes the larger share of the correction
+    assert np.median(move[:, 2] / np.maximum(move[:, 1], 1e-12)) > 1.0
