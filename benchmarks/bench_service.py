@@ -206,7 +206,8 @@ def main() -> int:
     def ms(v: float) -> str:
         return f"{v * 1e3:8.2f}"
 
-    print(f"streamfix serve over loopback, {RATE_HZ:g} Hz, {args.seconds:g} s per run, lookahead {LOOKAHEAD_S} s")
+    print(f"streamfix serve over loopback, {RATE_HZ:g} Hz, {args.seconds:g} s per run, lookahead {LOOKAHEAD_S} s; "
+          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (others' load inflates every number)")
     print(f"{'engine':<12}{'bodies':>7}{'out l/c':>12}{'live p50':>10}{'live p99':>10}{'x base':>8}"
           f"{'clean p50':>10}{'clean p99':>10}{'beyond L':>10}{'live<=2ms':>10}{'clean<=100ms':>13}{'degraded':>9}"
           f"{'live/body':>10}")
