@@ -78,3 +78,23 @@ def test_resample_and_windows_cover_every_frame(shared_data):
     assert covered.all() and starts[-1] == r.shape[0] - 64
     short, short_m, _ = cut_windows(pos[:10], obs[:10], 64)
     assert short.shape == (1, 64, 25, 3) and not short_m[0, 10:].any()
+
+
+def test_cmu_marker_takes_become_upright_kinect_bodies(shared_data):
+    from streamfix.prior.data import marker_take
+
+    take = marker_take(shared_data / "c3d" / "85_02.c3d")
+    assert take.positions.shape[1:] == (25, 3) and take.observed.all()
+    up = take.positions[:, KINECT_V2.index("Head")] - take.positions[:, KINECT_V2.index("SpineBase")]
+    assert np.median(up[:, 1]) > 0.3  # y-up like BVH and Kinect camera space
+    # not mirrored: (left hip - right hip) x up points where the feet point, as on a BVH take and a Kinect recording
+    from streamfix.prior.data import load_take
+
+    def handedness(p):
+        fwd = (p[:, 15] - p[:, 14]) + (p[:, 19] - p[:, 18])
+        return np.sign(np.nanmedian(np.einsum("ti,ti->t", np.cross(p[:, 12] - p[:, 16], p[:, 3] - p[:, 0]), fwd)))
+
+    bvh = load_take(shared_data / "cmu_bvh" / "131_01.bvh").positions
+    kinect = load_take(shared_data / "kinect_v2" / "Ges01_wavehand.csv").positions
+    assert handedness(take.positions) == handedness(bvh) == handedness(kinect) != 0
+    assert marker_take(shared_data / "c3d" / "03_rolling.c3d") is None  # another marker set: not used

@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--held-out", default=None,
                         help="comma-separated take names to hold out (default: 131_02,neutral_01_000,Ges04_comehere)")
     parser.add_argument("--no-eval", action="store_true", help="skip the held-out occlusion scores in the card")
+    parser.add_argument("--with-markers", action="store_true",
+                        help="also train on the CMU full-body marker C3D takes under c3d/ (joints approximated from "
+                             "markers; off by default: it made the held-out D(z*) worse)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,5 +45,6 @@ def run(args: argparse.Namespace) -> int:
     held = tuple(s for s in args.held_out.split(",") if s) if args.held_out else HELD_OUT
     cfg = TrainConfig(epochs=args.epochs, seed=args.seed, channels=args.channels, latent=args.latent,
                       steps_per_epoch=args.steps, threads=args.threads)
-    train_and_export(data, args.out, cfg, held_out=held, log=lambda s: print(s, flush=True), evaluate=not args.no_eval)
+    train_and_export(data, args.out, cfg, held_out=held, log=lambda s: print(s, flush=True), evaluate=not args.no_eval,
+                     include_markers=args.with_markers)
     return 0

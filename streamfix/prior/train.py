@@ -260,9 +260,10 @@ def train_and_export(
     held_out: tuple[str, ...] = HELD_OUT,
     log: Callable[[str], None] = print,
     evaluate: bool = True,
+    include_markers: bool = False,
 ) -> dict:
     """Load ``data_dir``, train, export the three graphs and write the card ``<out>/kinect_v2.json``."""
-    takes = load_takes(data_dir)
+    takes = load_takes(data_dir, include_markers=include_markers)
     train_takes, test_takes = split_takes(takes, held_out)
     log(
         f"{len(train_takes)} training takes ({sum(t.positions.shape[0] / t.rate_hz for t in train_takes):.1f} s), "
@@ -302,7 +303,9 @@ def train_and_export(
             ],
             "held_out": [t.name for t in test_takes],
             "split": "whole takes held out (never frames of a training take)",
-            "observed": "BVH retargeted to Kinect v2: all joints; Kinect v2 CSV: tracked joints only",
+            "observed": "BVH retargeted to Kinect v2: all joints; Kinect v2 CSV: tracked joints only"
+            + ("; CMU full-body marker C3D: joints approximated from markers "
+               "(streamfix.prior.data._CMU_MARKERS_TO_KINECT)" if include_markers else ""),
             "augmentation": "rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring (x negated + joint swap), "
             "speed x0.7..x1.4 by linear resampling, joint dropping (subsets, limbs, runs of frames)",
             "loss": "masked (ambient) MSE over the data's observed joint-frames (Lohit et al. Sec. 4.2)",
