@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", type=int, default=None, metavar="W",
                         help="frames per solved window (default: 2 s at the file's rate)")
     parser.add_argument("--hop", type=int, default=None, metavar="H",
-                        help="frames between window solves (default: 0.4 s, at most lookahead+1)")
+                        help="frames between window solves (default: 1/3 s, at most lookahead+1)")
     parser.add_argument("--lookahead", type=int, default=None, metavar="L",
                         help="frames of lookahead per output frame (default: 0.5 s, as serve)")
     parser.add_argument("--skeleton-lengths", default=None, metavar="LENGTHS",

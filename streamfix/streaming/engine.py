@@ -33,12 +33,13 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
 
 Each window's first ``W - L - 1`` frames are context only (already emitted); a frame's
 value comes from windows that saw between ``L + 1 - H`` and ``L`` frames of its future.
-Defaults (seconds, converted at ``rate_hz``): W 2 s, H 0.4 s, L 0.5 s = 60/12/15 frames
+Defaults (seconds, converted at ``rate_hz``): W 2 s, H 1/3 s, L 0.5 s = 60/10/15 frames
 at 30 Hz. Measured with the default window solver on CMU 131_01/131_02 at 30 Hz with
-10 / 20 % of entries corrupted by U(+-25 cm): clean AJE 0.8-1.25x that of cleaning the
-whole sequence at once; ``benchmarks/bench_streaming.py``: ~12.7 bodies at 30 Hz per
-core (CPU time), window compute p99 ~32 ms, live path p99 ~0.4 ms per body-frame.
-A shorter hop buys quality for compute (H 5: ~1.16x at 20 %, twice the solves).
+10 / 20 % of entries corrupted by U(+-25 cm): clean AJE 0.9-1.2x that of cleaning the
+whole sequence at once (H 12: up to 1.35x; the frames with the least future context,
+``L + 1 - H``, sit inside the solver's edge effects). Compute is one window solve per
+body per ``H`` frames, so bodies per core scale with ``H / W`` and the window solver's
+cost: ``benchmarks/bench_streaming.py`` measures it against a Savitzky-Golay window.
 
 Offline cleaning is a pure function of the input sequence: in the synchronous mode
 (the default) nothing depends on timing, so the same input gives the same output.
@@ -130,7 +131,7 @@ signature of :func:`streamfix.core.pipeline.clean_window`."""
 # --------------------------------------------------------------------------- config
 DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
 DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean latency)
-DEFAULT_HOP_S = 0.4  # H: 12 frames at 30 Hz
+DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,7 @@ class EngineConfig:
 
     window W, hop H, lookahead L: frames, ``1 <= H <= L + 1 <= W``; the clean output's
     latency is ``L / rate_hz`` s plus compute. Left None, they follow the defaults in
-    seconds (W 2 s, H 0.4 s, L 0.5 s) at ``rate_hz``: 60/12/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
+    seconds (W 2 s, H 1/3 s, L 0.5 s) at ``rate_hz``: 60/10/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
     detection, filters). live: the live path's settings. max_iterations: solver
     iteration cap per window (None = the solver's default). solver_config: passed as
     ``config=`` to the window solver (None = its default). bone_lengths: fixed
