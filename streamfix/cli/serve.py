@@ -43,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loop", action="store_true", help="replay: loop the recording instead of exiting at its end")
     p.add_argument("--start-delay", type=float, default=0.0, metavar="S",
                    help="wait S seconds before reading input, so subscribers can connect first (default 0)")
+    p.add_argument("--idle-timeout", type=float, default=2.0, metavar="S",
+                   help="flush a stream that sent nothing for S seconds, so its last frames come out "
+                   "on clean (0 = only at exit; default %(default)s)")
     p.add_argument("--stream-id", default=None, help="stream id for stdin/replay input (default: stdin / file name)")
     p.add_argument("--sensor-rate", type=float, default=30.0,
                    help="frame rate (Hz) assumed for a stream no skeleton message describes (default %(default)s)")
@@ -112,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
             metrics_host=args.metrics_host,
             status_interval_s=args.status_interval,
             start_delay_s=args.start_delay,
+            idle_timeout_s=args.idle_timeout,
         )
     except OSError as exc:
         publisher.close()

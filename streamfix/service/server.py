@@ -10,7 +10,8 @@ their own daemon threads; the engine may solve windows on its own worker):
    frame, from its skeleton and rate), passed through on ``raw``, and whatever the
    engine returns goes out on ``live`` / ``clean``. A stream whose skeleton changes,
    or whose ``seq`` jumps back by more than a second's worth (the sender restarted),
-   has its engine flushed and replaced. Outputs the engine finishes in the
+   has its engine flushed and replaced; a stream that sends nothing for
+   ``idle_timeout_s`` is flushed (its last lookahead's frames come out) and forgotten. Outputs the engine finishes in the
    background are collected with ``engine.poll()`` on every turn.
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
    one-line status goes to stderr every ``status_interval_s``.
@@ -161,6 +162,7 @@ class Service:
         max_log_per_s: int = 20,
         flush_timeout_s: float = 10.0,
         start_delay_s: float = 0.0,
+        idle_timeout_s: float = 0.0,
     ) -> None:
         self.source = source
         self.publisher = publisher
@@ -168,6 +170,7 @@ class Service:
         self.default_rate_hz = float(default_rate_hz)
         self.flush_timeout_s = float(flush_timeout_s)
         self.start_delay_s = float(start_delay_s)
+        self.idle_timeout_s = float(idle_timeout_s)
         self.m = metrics or ServiceMetrics()
         self.metrics_server: MetricsServer | None = None
         if metrics_port is not None:
@@ -246,9 +249,9 @@ class Service:
         log.info("new stream %r: skeleton %s (%d joints), %.3g Hz", frame.stream_id, skeleton.name, skeleton.n_joints, rate)
         return st
 
-    def _retire(self, st: _Stream, why: str) -> None:
+    def _retire(self, st: _Stream, why: str, level: int = logging.WARNING) -> None:
         """Flush and close a stream's engine (its pending frames still go out)."""
-        log.warning("stream %r %s: flushing its engine and starting a new one", st.stream_id, why)
+        log.log(level, "stream %r %s: flushing its engine", st.stream_id, why)
         self._publish_outputs(st, self._engine_flush(st))
         close = getattr(st.engine, "close", None)
         if close is not None:
@@ -312,6 +315,15 @@ class Service:
                     self.m.clean_latency.observe((now - arrival) / 1e9)
                 if trigger is not None:
                     self.m.clean_compute.observe(max(0.0, (now - trigger) / 1e9))
+
+    def _retire_idle(self) -> None:
+        """Flush streams that sent nothing for ``idle_timeout_s``: their last frames come out."""
+        if self.idle_timeout_s <= 0:
+            return
+        now = time.monotonic_ns()
+        for st in list(self.streams.values()):
+            if st.last_arrival_ns and now - st.last_arrival_ns > self.idle_timeout_s * 1e9:
+                self._retire(st, f"sent nothing for {self.idle_timeout_s:g} s", logging.INFO)
 
     def _poll_engines(self) -> None:
         for st in self.streams.values():
@@ -387,6 +399,7 @@ class Service:
                 now = time.monotonic()
                 self.publisher.tick(now)
                 if now >= next_sync:
+                    self._retire_idle()
                     self._sync_counters()
                     next_sync = now + 0.25
                 if self.status_interval_s > 0 and now >= next_status:
