@@ -172,3 +172,25 @@ def test_initial_guess_bridges_a_blackout_from_its_neighbours(prior, shared_data
     # the blackout is bridged between the estimates around it, not sent to the sensor origin
     lo, hi = np.minimum(root[99], root[230]) - 0.3, np.maximum(root[99], root[230]) + 0.3
     assert np.all((root[100:230] >= lo) & (root[100:230] <= hi))
+
+
+def test_prior_shifted_state_puts_the_prior_on_the_new_frames(prior, held_out):
+    from streamfix.core.alm import solve
+    from streamfix.prior.init import prior_shifted_state
+
+    wins, masks, keep = held_out
+    full = np.concatenate([wins[0], wins[1]])  # 128 consecutive frames
+    fobs = np.concatenate([masks[0] & keep[0], masks[1] & keep[1]])
+    bones = KINECT_V2.bone_array
+    first = solve(np.where(fobs[:64, :, None], full[:64], np.nan), fobs[:64], bones)
+    hop = 16
+    d, o = full[hop:64 + hop], fobs[hop:64 + hop]
+    plain = first.state.shifted(hop)
+    state = prior_shifted_state(first.state, hop, d, o, 30.0, prior=prior)
+    np.testing.assert_array_equal(state.A[:-hop], plain.A[:-hop])  # old frames untouched
+    np.testing.assert_array_equal(state.A[-hop:][o[-hop:]], d[-hop:][o[-hop:]])  # observed new joints kept
+    missing = ~o[-hop:] & masks[1][:hop]
+    err = lambda a: np.linalg.norm(a[-hop:] - d[-hop:], axis=-1)[missing].mean()  # noqa: E731
+    assert err(state.A) < err(plain.A)  # the prior beats constant-velocity extrapolation on the new frames
+    res = solve(np.where(o[..., None], d, np.nan), o, bones, state=state)
+    assert np.isfinite(res.positions).all()

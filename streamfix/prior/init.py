@@ -13,6 +13,14 @@ How the other layers call it
   D(E(Y)). Observed joints are returned unchanged (``keep_observed=True``), unobserved
   ones come from the prior. Cost: one batched call per 64-frame (30 Hz) window at hop 32.
 
+* Streaming warm start (the new frames entering a window): instead of the constant-velocity
+  extrapolation of ``SolverState.shifted(hop)``::
+
+      state = prior_shifted_state(prev.state, hop, D, observed, rate_hz)
+      result = streamfix.core.alm.solve(D, observed, bones, state=state)
+
+  (D/observed: the *new* window, whose last ``hop`` frames are the new ones.)
+
 * Joints missing for longer than the solver can bridge (streaming engine, ``clean``)::
 
       from streamfix.prior.init import fill_long_gaps
@@ -39,6 +47,7 @@ __all__ = [
     "prior_available",
     "overlap_add",
     "solver_params_for_prior_init",
+    "prior_shifted_state",
     "PRIOR_INIT_RHO_FACTOR",
 ]
 
@@ -166,6 +175,39 @@ def solver_params_for_prior_init(D: np.ndarray, observed: np.ndarray, base=None,
     paper = centred.transpose(0, 2, 1).reshape(-1, x.shape[1])  # 3T x S (Eq. 1 layout)
     rho0 = 1.25 / max(float(np.linalg.norm(paper, 2)), 1e-12)
     return replace(base, rho0=rho0 * factor)
+
+
+def prior_shifted_state(
+    state,
+    hop: int,
+    positions: np.ndarray,
+    observed: np.ndarray,
+    rate_hz: float,
+    *,
+    prior: Prior | None = None,
+    method: str = "encode",
+):
+    """``state.shifted(hop)`` with the ``hop`` new frames' positions (A, N, W^T C) from the prior.
+
+    ``positions``/``observed`` are the new window (T, J, 3) / (T, J) (its last ``hop``
+    frames are the new ones). Observed joints of the new frames keep their values, the
+    others come from the prior (``method`` "encode" = D(E(Y)), ~0.6 ms; "latent" = D(z*)).
+    """
+    from dataclasses import replace
+
+    shifted = state.shifted(hop)
+    if hop <= 0:
+        return shifted
+    guess = prior_initial_guess(positions, observed, rate_hz, prior=prior, method=method)
+    if not np.isfinite(guess[-hop:]).all():
+        return shifted
+    new = slice(shifted.A.shape[0] - hop, None)
+    fields = {}
+    for name in ("A", "N", "Ct"):
+        arr = getattr(shifted, name).copy()
+        arr[new] = guess[-hop:]
+        fields[name] = arr
+    return replace(shifted, **fields)
 
 
 def fill_long_gaps(
