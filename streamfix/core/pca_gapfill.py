@@ -35,12 +35,22 @@ Choices the paper leaves open, made here and documented:
   individual basis is therefore rotated onto the pooled incomplete training basis
   by orthogonal Procrustes; this keeps every span (hence Eq. 2's premise) unchanged
   and makes the result independent of the eigen-solver's arbitrary choices.
-* **Template per missing pattern** (:func:`fill_gaps`): frames are grouped by which
-  joints are missing; for each group the template zeroes those joints' columns in
-  the training pieces and in ``B``. Coordinates are expressed relative to the
-  per-frame centroid of the group's observed joints and centred on the training
-  mean (the "scaled to the same level in advance" of Section III-A), so training
-  takes recorded elsewhere in the room still apply.
+* **Templates** (:func:`fill_gaps`): samples are grouped by template and Eq. (1)-(4)
+  run once per template. With ``n_partners=None`` the template is the paper's: the
+  frame's observed joints predict all its missing ones. By default
+  (``DEFAULT_PARTNERS = 4``) the matrix holds one missing joint and the 4 observed
+  joints whose distance to it varies least in training ("local templates"; on the
+  CMU takes this cuts the 100-frame-gap error ~3x against the whole-body template).
+  Coordinates are expressed in the frame of the observed joints (centroid removed,
+  rotated onto their mean training pose by Kabsch) and centred on the training mean
+  (the "scaled to the same level in advance" of Section III-A), so training takes
+  recorded elsewhere in the room, or facing another way, still apply.
+* **Boundary correction** (not in the paper, ``boundary_correction=True``): the
+  estimate's error on the observed samples next to each gap is interpolated across
+  the gap and removed, so fills join the observed trajectory without a step.
+* **Plausibility projection** (not in the paper, optional,
+  :func:`project_pair_distances`): filled markers are moved so rigid marker pairs
+  keep the distance range observed where both are visible.
 * **Weights of Eq. (13)**: ``W = diag(w_l)``, ``w_l = exp(-d_l / tau)`` with ``d_l`` the
   distance (frames) of present frame ``l`` to the nearest missing frame; ``tau`` is
   chosen from a small grid by minimising Eq. (13)'s prediction error of the removed
@@ -75,6 +85,11 @@ __all__ = [
 
 DEFAULT_ENERGY = 0.9999
 """Default explained-energy threshold of the rank rule (fraction of variance kept)."""
+
+DEFAULT_PARTNERS = 4
+"""Local templates: each missing joint is predicted from this many observed joints whose
+distance to it varies least in training (None = every observed joint, the paper's
+whole-matrix template)."""
 
 _EPS = 1e-12
 
@@ -220,21 +235,27 @@ def blackout_weights(missing_rows: np.ndarray, tau: float) -> np.ndarray:
 _TAU_GRID = (4.0, 8.0, 16.0, 32.0, 64.0, np.inf)
 
 
-def _choose_tau(V: np.ndarray, missing_rows: np.ndarray, windows: np.ndarray, max_cols: int = 3000,
-                rng_seed: int = 0) -> float:
-    """Eq. (13): the ``tau`` of ``W`` with least prediction error of the removed rows."""
+def _choose_r_tau(V: np.ndarray, missing_rows: np.ndarray, windows: np.ndarray, max_cols: int = 3000,
+                  rng_seed: int = 0) -> tuple[int, float]:
+    """Eq. (13) on the training samples: the number of basis columns ``r`` (at most
+    ``V``'s, which the energy rule set) and the ``tau`` of ``W`` whose estimate of the
+    removed rows from the reduced rows has the least squared error."""
     A = np.asarray(windows, dtype=np.float64)
     cols = np.moveaxis(A, 1, 0).reshape(A.shape[1], -1)      # (m, K*c) training trajectories
     if cols.shape[1] > max_cols:
         sel = np.random.default_rng(rng_seed).choice(cols.shape[1], max_cols, replace=False)
         cols = cols[:, sel]
     present = ~missing_rows
-    best, best_err = np.inf, np.inf
+    r_all = V.shape[1]
+    r_grid = np.unique(np.clip(np.round(np.geomspace(2, r_all, 8)).astype(int), 2, r_all))
+    best, best_err = (r_all, np.inf), np.inf
     for tau in _TAU_GRID:
-        pred = eq16_estimate(cols[present], V[present], V[missing_rows], blackout_weights(missing_rows, tau))
-        err = float(np.mean((pred - cols[missing_rows]) ** 2))
-        if err < best_err:
-            best, best_err = tau, err
+        w = blackout_weights(missing_rows, tau)
+        for r in r_grid:
+            pred = eq16_estimate(cols[present], V[present, :r], V[missing_rows, :r], w)
+            err = float(np.mean((pred - cols[missing_rows]) ** 2))
+            if err < best_err:
+                best, best_err = (int(r), tau), err
     return best
 
 
@@ -325,15 +346,15 @@ def _pattern_groups(obs: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.n
     return pats, inv.ravel()
 
 
-def _select_predictors(obs_pat: np.ndarray, tr_obs: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray]:
+def _select_predictors(obs_pat: np.ndarray, tgt: np.ndarray, tr_obs: np.ndarray, min_frames: int
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Observed joints to use and the training frames where they and the missing ones exist.
 
     Starts from the joints missing in the pattern (the targets), adds the pattern's
     observed joints in order of their availability in training and stops before the
     usable training frames drop under ``min_frames``. Returns (predictor joints, rows).
     """
-    miss = ~obs_pat
-    rows = tr_obs[:, miss].all(axis=1)
+    rows = tr_obs[:, tgt].all(axis=1)
     cand = np.flatnonzero(obs_pat)
     if rows.sum() == 0 or cand.size == 0:
         return cand[:0], rows
@@ -384,13 +405,14 @@ def _normalise_frames(Z: np.ndarray, n_pred: int, ref: np.ndarray | None, rotate
 
 
 def _fill_pattern(
-    x: np.ndarray, obs_pat: np.ndarray, frames: np.ndarray, ctx_frames: np.ndarray,
+    x: np.ndarray, obs_pat: np.ndarray, tgt: np.ndarray, frames: np.ndarray, ctx_frames: np.ndarray,
     tr: np.ndarray, tr_obs: np.ndarray, piece_frames: int, energy: float, r_max: int | None,
     min_train_frames: int, rotate: bool = True, max_train_frames: int = 4000,
 ) -> np.ndarray | None:
-    """Eq. (1)-(4) for one template (one set of missing joints); returns (len(frames), Jmiss, 3)."""
-    miss_j = np.flatnonzero(~obs_pat)
-    pred_j, rows = _select_predictors(obs_pat, tr_obs, min_train_frames)
+    """Eq. (1)-(4) for one template: joints ``tgt`` missing, ``obs_pat`` observed (the
+    matrix holds only these joints). Returns ``(len(frames), n_tgt, 3)`` or None."""
+    miss_j = np.flatnonzero(tgt)
+    pred_j, rows = _select_predictors(obs_pat, tgt, tr_obs, min_train_frames)
     if pred_j.size == 0 or rows.sum() < min_train_frames:
         return None
     joints = np.concatenate([pred_j, miss_j])
@@ -454,6 +476,7 @@ def fill_gaps(
     layout: str | None = None,
     rotate: bool = True,
     boundary_correction: bool = True,
+    n_partners: int | None = DEFAULT_PARTNERS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fill joints missing in frames where at least ``min_observed_joints`` are observed.
 
@@ -486,52 +509,92 @@ def fill_gaps(
     tr_obs = ts.observed
     T_len, J, _ = x.shape
     need = ~obs & enough[:, None]                            # samples this function fills
-    min_frames = min_train_frames or max(2 * 3 * J, 100)
-    # queries: (frame, template). Gap frames use their own observed pattern; probes are
-    # observed samples next to a gap, queried with that one joint removed.
-    q_rows, q_pats, q_probe = [rows], [obs[rows]], [np.full(rows.size, -1)]
+    min_frames = min_train_frames or max(2 * 3 * (J if n_partners is None else n_partners + 1), 100)
+    # probes: observed samples next to a gap (for the boundary correction)
+    probe = np.zeros_like(need)
     if boundary_correction:
-        nb = np.zeros_like(need)
-        nb[:-1] |= need[1:]
-        nb[1:] |= need[:-1]
-        pt, pj = np.nonzero(obs & nb & enough[:, None])
-        pp = obs[pt].copy()
-        pp[np.arange(pt.size), pj] = False
-        ok = pp.sum(axis=1) >= min_observed_joints
-        q_rows.append(pt[ok]), q_pats.append(pp[ok]), q_probe.append(pj[ok])
-    q_rows, q_pats, q_probe = np.concatenate(q_rows), np.concatenate(q_pats), np.concatenate(q_probe)
-    pats, inv = np.unique(q_pats, axis=0, return_inverse=True)
+        probe[:-1] |= need[1:]
+        probe[1:] |= need[:-1]
+        probe &= obs & enough[:, None]
+    # queries: (frame, joint or -1 for "all targets", is-probe, predictors, targets)
+    if n_partners is None:
+        # the paper's template: every observed joint predicts every missing one
+        pt, pj = np.nonzero(probe)
+        q_t = np.concatenate([rows, pt])
+        q_j = np.concatenate([np.full(rows.size, -1), pj])
+        q_pred = np.concatenate([obs[rows], obs[pt]])
+        q_pred[np.arange(rows.size, q_t.size), pj] = False
+        q_tgt = ~q_pred
+        ok = q_pred.sum(axis=1) >= min_observed_joints
+    else:
+        # local templates: one target joint, its n_partners most rigid observed partners
+        rank = _partner_ranking(tr, tr_obs)                  # (J, J-1)
+        qt, qj = np.nonzero(need | probe)
+        avail = obs[qt[:, None], rank[qj]].copy()            # (N, J-1) partner observed?
+        avail &= np.cumsum(avail, axis=1) <= n_partners
+        q_pred = np.zeros((qt.size, J), dtype=bool)
+        q_pred[np.repeat(np.arange(qt.size), J - 1), rank[qj].ravel()] = avail.ravel()
+        q_tgt = np.zeros_like(q_pred)
+        q_tgt[np.arange(qt.size), qj] = True
+        q_t, q_j = qt, qj
+        ok = q_pred.sum(axis=1) >= min(min_observed_joints, n_partners)
+    q_probe = probe[q_t, np.maximum(q_j, 0)] & (q_j >= 0)
+    q_t, q_j, q_probe, q_pred, q_tgt = q_t[ok], q_j[ok], q_probe[ok], q_pred[ok], q_tgt[ok]
+    keys, inv = np.unique(np.hstack([q_pred, q_tgt]), axis=0, return_inverse=True)
     inv = inv.ravel()
     resid = np.full(x.shape, np.nan)
-    for p in range(pats.shape[0]):  # one template per missing-joint pattern
+    for p in range(keys.shape[0]):  # one template per (observed, missing) joint pattern
         sel = np.flatnonzero(inv == p)
-        frames, probe_j = q_rows[sel], q_probe[sel]
-        pat = pats[p]
-        order = np.argsort(frames, kind="stable")
-        frames, probe_j = frames[order], probe_j[order]
+        sel = sel[np.argsort(q_t[sel], kind="stable")]
+        frames, qj, qp = q_t[sel], q_j[sel], q_probe[sel]
+        pat, tgt = keys[p, :J], keys[p, J:]
         # context: frames near this template's frames where its observed joints are all seen
         lo = max(frames[0] - context_frames // 2, 0)
         hi = min(frames[-1] + context_frames // 2 + 1, T_len)
         near = np.arange(lo, hi)
         near = near[obs[near][:, pat].all(axis=1)]
-        est = _fill_pattern(x, pat, frames, near, tr, tr_obs, piece_frames, energy, r_max, min_frames,
+        est = _fill_pattern(x, pat, tgt, frames, near, tr, tr_obs, piece_frames, energy, r_max, min_frames,
                             rotate, max_train_frames)
         if est is None:
             continue
-        miss_j = np.flatnonzero(~pat)
-        g = probe_j < 0
-        fr = frames[g]
-        out[fr[:, None], miss_j[None, :]] = est[g]
-        filled[fr[:, None], miss_j[None, :]] = True
-        if (~g).any():                                       # probe residuals e = x - x_hat
-            pr, pjj = frames[~g], probe_j[~g]
-            col = np.searchsorted(miss_j, pjj)
-            resid[pr, pjj] = x[pr, pjj] - est[~g][np.arange(pr.size), col]
+        miss_j = np.flatnonzero(tgt)
+        g = ~qp & (qj < 0)                                   # gap rows, all targets
+        if g.any():
+            fr = frames[g]
+            out[fr[:, None], miss_j[None, :]] = est[g]
+            filled[fr[:, None], miss_j[None, :]] = True
+        col = np.searchsorted(miss_j, np.maximum(qj, 0))
+        one = ~qp & (qj >= 0)                                # gap samples, one target
+        if one.any():
+            out[frames[one], qj[one]] = est[one, col[one]]
+            filled[frames[one], qj[one]] = True
+        if qp.any():                                         # probe residuals e = x - x_hat
+            resid[frames[qp], qj[qp]] = x[frames[qp], qj[qp]] - est[qp, col[qp]]
     filled &= need
     if boundary_correction and filled.any():
         out = out + _residual_field(resid, obs, filled)
     out[obs] = x[obs]
     return out, filled
+
+
+def _partner_ranking(tr: np.ndarray, tr_obs: np.ndarray, min_common: float = 0.1) -> np.ndarray:
+    """For each joint, the other joints ordered by how little their distance to it varies
+    in training (std, metres, over frames where both are seen). ``(J, J-1)`` indices."""
+    J = tr.shape[1]
+    sub = slice(None, None, max(tr.shape[0] // 4000, 1))
+    x, o = tr[sub], tr_obs[sub]
+    ia, ib = np.triu_indices(J, 1)
+    both = o[:, ia] & o[:, ib]
+    d = np.linalg.norm(np.nan_to_num(x[:, ia] - x[:, ib]), axis=2)
+    cnt = both.sum(axis=0)
+    c = np.maximum(cnt, 1)
+    mean = (d * both).sum(axis=0) / c
+    sd = np.sqrt(((d - mean) ** 2 * both).sum(axis=0) / c)
+    sd = np.where(cnt >= max(min_common * x.shape[0], 10), sd, 1e6 - cnt)  # rarely seen: last
+    S = np.full((J, J), np.inf)
+    S[ia, ib] = sd
+    S[ib, ia] = sd
+    return np.argsort(S, axis=1, kind="stable")[:, : J - 1]
 
 
 def _residual_field(resid: np.ndarray, obs: np.ndarray, filled: np.ndarray) -> np.ndarray:
@@ -605,7 +668,7 @@ def fill_blackouts(
     blackout: np.ndarray | None = None,
     window: int = 200,
     max_fraction: float = 0.3,
-    energy: float = DEFAULT_ENERGY,
+    energy: float = 0.999,
     r_max: int | None = 60,
     bases: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -652,10 +715,12 @@ def fill_blackouts(
         V, Aw = bases[key_v]
         if (~miss_rows).sum() <= V.shape[1]:
             continue
-        key_t = ("tau", m, miss_rows.tobytes())
+        key_t = ("r_tau", m, miss_rows.tobytes())
         if key_t not in bases:
-            bases[key_t] = _choose_tau(V, miss_rows, Aw)
-        w = blackout_weights(miss_rows, bases[key_t])
+            bases[key_t] = _choose_r_tau(V, miss_rows, Aw)
+        r_cv, tau = bases[key_t]
+        V = V[:, :r_cv]
+        w = blackout_weights(miss_rows, tau)
         cols = x[blk].reshape(m, -1)
         okc = np.repeat(present_ok, 3)
         est = eq16_estimate(cols[~miss_rows][:, okc], V[~miss_rows], V[miss_rows], w)  # Eq. (16)
@@ -730,26 +795,77 @@ def pca_fill(
 
 # --------------------------------------------------------------------------- rigid pairs
 def estimate_rigid_pairs(positions: np.ndarray, observed: np.ndarray | None = None, k: int = 60,
-                         min_common: int = 30) -> np.ndarray:
-    """The ``k`` marker pairs whose distance varies least (std / mean, where both seen).
+                         min_common: float = 0.25) -> np.ndarray:
+    """The ``k`` marker pairs whose distance varies least (std in metres, where both seen).
 
-    Returns ``(k, 2)`` int pairs sorted from most to least rigid. Pairs seen together
-    in fewer than ``min_common`` frames are skipped.
+    Only pairs seen together in at least ``min_common`` of the frames (a fraction, or
+    a frame count if > 1) count: a pair seen together only while the body stood still
+    looks rigid without being so. Returns ``(k, 2)`` int pairs, most rigid first.
     """
     x = np.asarray(positions, dtype=np.float64)
     obs = _observed_mask(x, observed)
     T_len, J, _ = x.shape
+    need = min_common * T_len if min_common <= 1 else min_common
     ia, ib = np.triu_indices(J, 1)
     both = obs[:, ia] & obs[:, ib]                           # (T, P)
-    d = np.linalg.norm(x[:, ia] - x[:, ib], axis=2)
-    d = np.where(both, d, np.nan)
+    d = np.linalg.norm(np.nan_to_num(x[:, ia] - x[:, ib]), axis=2)
     cnt = both.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.nanmean(d, axis=0)
-        cv = np.nanstd(d, axis=0) / mean
-    cv = np.where(cnt >= min_common, cv, np.inf)
-    order = np.argsort(cv, kind="stable")[: min(k, int(np.isfinite(cv).sum()))]
+    c = np.maximum(cnt, 1)
+    mean = (d * both).sum(axis=0) / c
+    var = ((d - mean) ** 2 * both).sum(axis=0) / c
+    score = np.where(cnt >= max(need, 2), np.sqrt(var), np.inf)
+    order = np.argsort(score, kind="stable")[: min(k, int(np.isfinite(score).sum()))]
     return np.stack([ia[order], ib[order]], axis=1).astype(np.intp)
+
+
+def pair_distance_ranges(positions: np.ndarray, observed: np.ndarray, pairs: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """``(min, max)`` distance (m) of each pair over frames where both markers are observed."""
+    x = np.asarray(positions, dtype=np.float64)
+    obs = np.asarray(observed, dtype=bool)
+    a, b = np.asarray(pairs, dtype=np.intp).reshape(-1, 2).T
+    d = np.linalg.norm(x[:, a] - x[:, b], axis=2)
+    both = obs[:, a] & obs[:, b]
+    return np.min(np.where(both, d, np.inf), axis=0), np.max(np.where(both, d, -np.inf), axis=0)
+
+
+def project_pair_distances(positions: np.ndarray, movable: np.ndarray, pairs: np.ndarray,
+                           dmin: np.ndarray, dmax: np.ndarray, iterations: int = 30) -> np.ndarray:
+    """Move only ``movable`` ``(T, J)`` samples so each pair's distance enters ``[dmin, dmax]``.
+
+    Jacobi projection (vectorised over frames and pairs): each out-of-range pair
+    asks its movable end(s) to close the excess along the pair's direction; a
+    sample's requests are averaged. Loops over iterations only. Observed samples
+    never move. Returns new positions ``(T, J, 3)``.
+    """
+    x = np.asarray(positions, dtype=np.float64).copy()
+    mov = np.asarray(movable, dtype=bool) & np.isfinite(x).all(axis=2)
+    a, b = np.asarray(pairs, dtype=np.intp).reshape(-1, 2).T
+    if a.size == 0 or not mov.any():
+        return x
+    lo = dmin + 0.02 * (dmax - dmin)                         # aim a little inside the range
+    hi = dmax - 0.02 * (dmax - dmin)
+    ma, mb = mov[:, a].astype(np.float64), mov[:, b].astype(np.float64)
+    share = ma + mb
+    wa = np.divide(ma, share, out=np.zeros_like(ma), where=share > 0)[..., None]
+    wb = np.divide(mb, share, out=np.zeros_like(mb), where=share > 0)[..., None]
+    T_len, J, _ = x.shape
+    for _ in range(iterations):
+        v = x[:, b] - x[:, a]                                # (T, P, 3)
+        L = np.linalg.norm(v, axis=2)
+        tgt = np.clip(L, lo, hi)
+        bad = np.isfinite(L) & (L > 0) & ((L < lo) | (L > hi))
+        if not bad.any():
+            break
+        step = np.where(bad, (L - tgt) / np.where(L > 0, L, 1.0), 0.0)[..., None] * np.nan_to_num(v)
+        acc = np.zeros((T_len, J, 3))
+        cnt = np.zeros((T_len, J))
+        np.add.at(acc, (slice(None), a), wa * step)
+        np.add.at(acc, (slice(None), b), -wb * step)
+        np.add.at(cnt, (slice(None), a), (wa[..., 0] > 0) & bad)
+        np.add.at(cnt, (slice(None), b), (wb[..., 0] > 0) & bad)
+        x += acc / np.maximum(cnt, 1)[..., None]
+    return x
 
 
 def pair_distance_plausibility(positions: np.ndarray, observed: np.ndarray, filled: np.ndarray,
