@@ -1,0 +1,104 @@
+"""Fill long gaps and blackouts in a whole :class:`~streamfix.motion.Motion` (offline).
+
+The hook ``streamfix clean`` calls for marker files (C3D) and for joint files whose
+gaps are longer than the solver window::
+
+    from streamfix.gapfill import fill_motion_gaps
+    motion = fill_motion_gaps(motion)                       # trains on the take itself
+    motion = fill_motion_gaps(motion, training="refs/")     # + reference takes (files/dir)
+
+Partial gaps are filled by Li et al. (2020) Eq. (4) (local templates), whole missing
+frames by Eq. (16), leftovers by linear interpolation (see
+:mod:`streamfix.core.pca_gapfill`). The take's own observed samples always train the
+model (never a gap: missing samples are NaN), so nothing needs to be prepared. For
+marker sets (a skeleton without bones) the filled markers are then projected so that
+the take's most rigid marker pairs keep the distance range observed where both are
+visible. Filled samples get confidence 0.5 (a recovered estimate) and
+``motion.recovered`` True; observed samples are never changed.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from .core import pca_gapfill as pg
+from .motion import CONFIDENCE_INFERRED, Motion
+
+__all__ = ["fill_motion_gaps", "RIGID_PAIRS"]
+
+RIGID_PAIRS = 60
+"""Number of rigid marker pairs kept in range for marker sets (0 = no projection)."""
+
+
+def _training(motion: Motion, training) -> pg.TrainingSet:
+    own = motion.positions.copy()
+    own[~motion.observed] = np.nan
+    if training is None:
+        return pg.TrainingSet([own])
+    if isinstance(training, (str, Path)) or (
+        isinstance(training, (list, tuple)) and training and isinstance(training[0], (str, Path))
+    ):
+        from .io.training_sets import load_training_set
+
+        exclude = [motion.meta["source"]] if "source" in motion.meta else []
+        ts = load_training_set(training, motion, exclude=exclude)
+        refs = [] if ts is None else list(ts.motions)
+    elif isinstance(training, pg.TrainingSet):
+        refs = list(training.motions)
+    elif isinstance(training, np.ndarray):
+        refs = [training]
+    else:
+        refs = list(training)
+    for k, r in enumerate(refs):
+        if np.shape(r)[1:] != (motion.n_joints, 3):
+            raise ValueError(f"training take {k}: expected (T, {motion.n_joints}, 3), got {np.shape(r)}")
+    return pg.TrainingSet(refs + [own])
+
+
+def fill_motion_gaps(
+    motion: Motion,
+    training: pg.TrainingSet | np.ndarray | Iterable | str | Path | None = None,
+    *,
+    energy: float = pg.DEFAULT_ENERGY,
+    n_partners: int | None = pg.DEFAULT_PARTNERS,
+    rigid_pairs: int | None = None,
+    blackout_window: int | None = None,
+) -> Motion:
+    """A copy of ``motion`` with its missing samples filled and flagged as recovered.
+
+    ``training``: None (the take's own observed samples), reference takes as arrays
+    ``(T_k, J, 3)`` m / a :class:`~streamfix.core.pca_gapfill.TrainingSet`, or file /
+    directory paths (matched by joint/marker name). ``rigid_pairs``: how many rigid
+    marker pairs to keep in their observed distance range (default
+    :data:`RIGID_PAIRS` for bone-less marker sets, 0 for skeletons).
+    ``blackout_window``: frames per Eq. (16) window (default 200 frames at 120 Hz,
+    scaled with the rate). A summary goes to ``meta["gapfill"]``.
+    """
+    out = motion.copy()
+    obs = motion.observed
+    if obs.all() or not obs.any():
+        out.meta["gapfill"] = {"filled": 0}
+        return out
+    ts = _training(motion, training)
+    window = blackout_window or max(int(round(200 * motion.rate_hz / 120.0)), 20)
+    filled_pos, filled = pg.pca_fill(motion.positions, obs, ts, energy=energy, n_partners=n_partners,
+                                     blackout_window=window)
+    n_pairs = rigid_pairs if rigid_pairs is not None else (RIGID_PAIRS if motion.skeleton.n_bones == 0 else 0)
+    summary: dict = {"filled": int(filled.sum()), "training_takes": len(ts.motions)}
+    if n_pairs and filled.any():
+        pairs = pg.estimate_rigid_pairs(motion.positions, obs, k=n_pairs)
+        if len(pairs):
+            lo, hi = pg.pair_distance_ranges(motion.positions, obs, pairs)
+            summary["plausibility_before"] = pg.pair_distance_plausibility(filled_pos, obs, filled, pairs)
+            filled_pos = pg.project_pair_distances(filled_pos, filled, pairs, lo, hi)
+            summary["plausibility"] = pg.pair_distance_plausibility(filled_pos, obs, filled, pairs)
+            summary["rigid_pairs"] = int(len(pairs))
+    filled_pos[obs] = motion.positions[obs]
+    out.positions = filled_pos
+    out.confidence = np.where(filled, CONFIDENCE_INFERRED, motion.confidence)
+    rec = filled if motion.recovered is None else (motion.recovered | filled)
+    out.recovered = rec
+    out.meta["gapfill"] = summary
+    return out
