@@ -344,6 +344,8 @@ class Histogram:
 
 
 # --------------------------------------------------------------------------- internals
+BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-window estimates
+BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
 RECOVERED_CONFIDENCE = 0.5
 """Confidence the engine gives a joint it recovered (protocol/SPEC.md: "its confidence is
 the service's estimate"): the sensor's own value for a guessed joint (inferred)."""
@@ -413,7 +415,7 @@ class _Body:
         self.solver_state = None
         self.solver_state_end = -1
         # bone lengths sampled from the body's clean output (median -> clean_lengths)
-        self.clean_bones = np.full((150, B), np.nan)
+        self.clean_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
         self.clean_bones_n = 0
         self.clean_lengths: np.ndarray | None = None
         self.prior_lengths = prior_lengths
@@ -764,15 +766,18 @@ class StreamEngine:
     def _robust_lengths(self, body: _Body) -> np.ndarray | None:
         """``(B,)`` bone lengths (m) for the solver and the live projection.
 
-        Fixed lengths if configured; else the median over the body's recent *clean*
-        output frames (robust: the window solver already removed the outliers, while a
-        median over raw corrupted input is biased by several cm); before enough clean
-        history exists, the lengths remembered for a re-identified body, else None
-        (the window solver estimates them from its window).
+        Fixed lengths if configured; else the median over the body's last
+        ``BONE_MEMORY_S`` (10 s) of *clean* output (robust: the window solver already
+        removed the outliers, while a median over raw corrupted input is biased by
+        several cm), once ``BONE_HISTORY_S`` (3 s) of it exist; before that, the lengths
+        remembered for a re-identified body, else None (the window solver estimates them
+        from its window). Measured on CMU 131 at 20 % corruption: per-window estimates
+        only, 1.18-1.32x the whole-sequence AJE; clean history after 3 s, 1.11-1.12x.
         """
         if self._fixed_lengths is not None:
             return self._fixed_lengths
-        if len(self.bones) and body.clean_bones_n >= min(self.cfg.window, len(body.clean_bones)):
+        need = min(max(1, int(round(BONE_HISTORY_S * self.cfg.rate_hz))), len(body.clean_bones))
+        if len(self.bones) and body.clean_bones_n >= need and body.clean_lengths is not None:
             return body.clean_lengths
         return body.prior_lengths
 
