@@ -14,7 +14,8 @@ SG along time) -- the cheapest "refined" output one could ship. Timings are best
 ``--repeats`` runs (the machine is shared); latency percentiles come from the run
 with the best throughput.
 
-Usage: ``python benchmarks/bench_streaming.py [--bodies 12] [--seconds 20] [--repeats 3]``.
+Usage: ``python benchmarks/bench_streaming.py [--bodies 12] [--seconds 20] [--repeats 3]
+[--window W] [--hop H]``.
 Exit status 1 when a target is missed.
 """
 from __future__ import annotations
@@ -187,13 +188,15 @@ def main() -> int:
     ap.add_argument("--bodies", type=int, default=12)
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--window", type=int, default=None, help="window W in frames (default: the engine's)")
+    ap.add_argument("--hop", type=int, default=None, help="hop H in frames (default: the engine's)")
     ap.add_argument("--realtime-seconds", type=float, default=10.0,
                     help="length of the real-time threaded run (informational)")
     args = ap.parse_args()
     n_frames = int(args.seconds * RATE)
     bodies = body_streams(args.bodies, n_frames)
     frames = make_frames(bodies, n_frames)
-    cfg = EngineConfig(rate_hz=RATE)
+    cfg = EngineConfig(rate_hz=RATE, window=args.window, hop=args.hop)
     solvers = {"streamfix (default)": default_window_solver(), "baseline savgol": savgol_window_solver}
     stream_s = n_frames / RATE
     rows = {}
