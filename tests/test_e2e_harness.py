@@ -138,3 +138,18 @@ def test_free_ports_are_distinct_and_bindable():
     assert len(ports) == 3
     with socket.socket() as s:
         s.bind(("127.0.0.1", ports.pop()))
+
+
+def collect_until(done, collect, progress, *, stall_s: float = 20.0, max_s: float = 240.0) -> None:
+    """Call ``collect()`` until ``done()``; give up after ``stall_s`` without ``progress()``
+    changing (the service stopped producing) or ``max_s`` in all. A busy machine slows
+    the service down but does not stall it, so the bound is on silence, not on speed."""
+    start = last_change = time.monotonic()
+    seen = progress()
+    while not done():
+        now = time.monotonic()
+        if now - last_change > stall_s or now - start > max_s:
+            return
+        collect()
+        if progress() != seen:
+            seen, last_change = progress(), time.monotonic()

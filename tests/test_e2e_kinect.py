@@ -18,8 +18,6 @@ and shutdown tests.
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from streamfix.cli import main as cli_main
@@ -28,7 +26,7 @@ from streamfix.io import read_motion
 from streamfix.service.playback import motion_frames
 from streamfix.streaming.engine import EngineConfig
 
-from test_e2e_harness import connected_subscriber, run_replay, serve
+from test_e2e_harness import collect_until, connected_subscriber, run_replay, serve
 
 AJE_TOLERANCE_M = 0.005
 
@@ -62,11 +60,11 @@ def test_every_kinect_recording_comes_out_once_in_order_and_matches_offline_clea
                 collect(sub, 0.05)
             # while the service works through them, run `streamfix clean` on the same files
             references = {f.stem: _clean_reference(f, tmp_path) for f in files}
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline and any(
-                sum(not m.filled for m in got[s]["live"]) < motions[s].n_frames for s in motions
-            ):
-                collect(sub, 0.5)
+            collect_until(
+                lambda: all(sum(not m.filled for m in got[s]["live"]) >= motions[s].n_frames for s in motions),
+                lambda: collect(sub, 0.5),
+                lambda: sum(len(v["live"]) for v in got.values()),
+            )
             assert sp.terminate() == 0, sp.stderr  # flushes the frames still inside their lookahead
             collect(sub, 3.0)
         finally:

@@ -112,6 +112,7 @@ class _Stream:
     frames: int = 0
     late_seen: int = 0
     last_seq: int | None = None
+    last_active_ns: int = 0  # when the service last handled a frame of this stream
 
     def note_arrival(self, time_ns: int, arrival_ns: int) -> None:
         index = self.base_index + len(self.by_index)
@@ -286,6 +287,7 @@ class Service:
         self.m.frames_in.inc(stream=frame.stream_id)
         self.publisher.publish("raw", frame)
         st.frames += 1
+        st.last_active_ns = time.monotonic_ns()  # handled now (it may have waited in the socket)
         st.last_seq = int(frame.seq)
         st.bodies = len(frame.bodies)
         if outputs:  # an accepted frame always has its live output; a late one has none
@@ -322,7 +324,7 @@ class Service:
             return
         now = time.monotonic_ns()
         for st in list(self.streams.values()):
-            if st.last_arrival_ns and now - st.last_arrival_ns > self.idle_timeout_s * 1e9:
+            if now - st.last_active_ns > self.idle_timeout_s * 1e9:
                 self._retire(st, f"sent nothing for {self.idle_timeout_s:g} s", logging.INFO)
 
     def _poll_engines(self) -> None:
@@ -393,13 +395,15 @@ class Service:
             time.sleep(min(0.05, max(0.0, start_at - time.monotonic())))  # let subscribers connect first
         try:
             while not self._stop.is_set():
-                for item in self.source.poll(max_turn_s):
+                items = self.source.poll(max_turn_s)
+                for item in items:
                     self._handle(item)
                 self._poll_engines()
                 now = time.monotonic()
                 self.publisher.tick(now)
                 if now >= next_sync:
-                    self._retire_idle()
+                    if not items:  # only with the input drained: a busy service is not an idle stream
+                        self._retire_idle()
                     self._sync_counters()
                     next_sync = now + 0.25
                 if self.status_interval_s > 0 and now >= next_status:
