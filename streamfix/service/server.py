@@ -52,6 +52,8 @@ __all__ = ["Service", "ServiceMetrics"]
 log = logging.getLogger("streamfix.service")
 
 _MAX_PENDING = 100_000  # arrival times kept per stream for latency accounting
+# engine counters forwarded as streamfix_engine_events_total{event=...}
+_ENGINE_EVENTS = ("windows_solved", "windows_skipped", "windows_abandoned", "solver_errors", "degrade_events")
 
 
 class ServiceMetrics:
@@ -81,6 +83,12 @@ class ServiceMetrics:
         self.streams = r.gauge("streamfix_streams", "Streams with a running engine.")
         self.bodies = r.gauge("streamfix_bodies", "Bodies in the latest frame, summed over streams.")
         self.degraded = r.gauge("streamfix_degraded", "1 while any engine runs degraded (solver behind), else 0.")
+        self.degrade_level = r.gauge(
+            "streamfix_degrade_level", "Deepest degradation level of any engine (0 none; 1 fewer iterations; 2-3 larger hop)."
+        )
+        self.engine_events = r.counter(
+            "streamfix_engine_events_total", "Engine window events (solved, skipped, abandoned, solver errors).", ("event",)
+        )
         self.live_compute = r.histogram("streamfix_live_compute_seconds", "Engine time to produce a live frame.")
         self.clean_compute = r.histogram(
             "streamfix_clean_compute_seconds", "Clean output delay beyond the lookahead (window solve + queueing)."
@@ -91,6 +99,8 @@ class ServiceMetrics:
         )
         for reason in REASONS:
             self.malformed.touch(reason=reason)
+        for event in _ENGINE_EVENTS:
+            self.engine_events.touch(event=event)
         for kind in ("raw", "live", "clean", "meta"):
             self.frames_out.touch(topic=kind)
             self.drops.touch(topic=kind)
@@ -111,6 +121,7 @@ class _Stream:
     bodies: int = 0
     frames: int = 0
     late_seen: int = 0
+    events_seen: dict = field(default_factory=dict)
     last_seq: int | None = None
     last_active_ns: int = 0  # when the service last handled a frame of this stream
 
@@ -345,18 +356,25 @@ class Service:
                 self.m.drops.inc(delta, topic=kind)
         self.m.bodies.set(sum(st.bodies for st in self.streams.values()))
         self.m.streams.set(len(self.streams))
-        degraded = False
+        degraded, level = False, 0
         for st in self.streams.values():
             try:
                 em = st.engine.metrics()
             except Exception:  # metrics must never take the service down
                 continue
             degraded |= bool(em.get("degraded", False))
+            level = max(level, int(em.get("degrade_level", 0) or 0))
             late = int(em.get("frames_dropped_late", 0))
             if late > st.late_seen:
                 self.m.late.inc(late - st.late_seen)
                 st.late_seen = late
+            for event in _ENGINE_EVENTS:
+                n = int(em.get(event, 0) or 0)
+                if n > st.events_seen.get(event, 0):
+                    self.m.engine_events.inc(n - st.events_seen.get(event, 0), event=event)
+                    st.events_seen[event] = n
         self.m.degraded.set(1.0 if degraded else 0.0)
+        self.m.degrade_level.set(level)
 
     def status_line(self) -> str:
         """One line: uptime, input rate, outputs, malformed, drops, bodies, latencies, degraded."""
