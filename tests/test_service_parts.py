@@ -178,3 +178,24 @@ def test_stdin_accepts_what_tap_json_prints_including_skeleton_lines():
     out, n_bad = validate_frame(f, {"arm3": msg.skeleton})
     assert n_bad == 1 and np.isnan(out.bodies[0].positions[1]).all()
     np.testing.assert_array_equal(out.bodies[0].confidence, [1.0, 0.0, 0.5])
+
+
+def test_metrics_http_server_serves_the_registry_on_loopback():
+    import urllib.error
+    import urllib.request
+
+    from streamfix.service.metrics import MetricsServer
+
+    reg = Registry()
+    reg.counter("hits_total", "hits").inc(3)
+    server = MetricsServer(reg, 0).start()
+    try:
+        assert server.host == "127.0.0.1" and server.port > 0
+        with urllib.request.urlopen(f"http://127.0.0.1:{server.port}/metrics", timeout=5) as resp:
+            assert resp.headers["Content-Type"].startswith("text/plain; version=0.0.4")
+            assert parse_prometheus_text(resp.read().decode())["hits_total"] == 3
+        with pytest.raises(urllib.error.HTTPError) as exc:
+            urllib.request.urlopen(f"http://127.0.0.1:{server.port}/other", timeout=5)
+        assert exc.value.code == 404
+    finally:
+        server.close()
