@@ -312,7 +312,7 @@ class TrainingSet:
             starts = np.arange(0, x.shape[0] - m + 1, hop)
             w = x[starts[:, None] + np.arange(m)[None, :]]   # (k, m, J, 3)
             ok = np.isfinite(w).all(axis=(1, 2, 3))
-            out.append(w[ok].reshape(int(ok.sum()), m, -1))
+            out.append(w[ok].reshape(int(ok.sum()), m, x.shape[1] * 3))
         if not out:
             return np.zeros((0, m, (self.n_joints if joints is None else len(joints)) * 3))
         return np.concatenate(out, axis=0)
@@ -407,7 +407,7 @@ def _normalise_frames(Z: np.ndarray, n_pred: int, ref: np.ndarray | None, rotate
 def _fill_pattern(
     x: np.ndarray, obs_pat: np.ndarray, tgt: np.ndarray, frames: np.ndarray, ctx_frames: np.ndarray,
     tr: np.ndarray, tr_obs: np.ndarray, piece_frames: int, energy: float, r_max: int | None,
-    min_train_frames: int, rotate: bool = True, max_train_frames: int = 4000,
+    min_train_frames: int, rotate: bool = True, max_train_frames: int = 1500,
 ) -> np.ndarray | None:
     """Eq. (1)-(4) for one template: joints ``tgt`` missing, ``obs_pat`` observed (the
     matrix holds only these joints). Returns ``(len(frames), n_tgt, 3)`` or None."""
@@ -472,7 +472,7 @@ def fill_gaps(
     context_frames: int = 240,
     min_observed_joints: int = 3,
     min_train_frames: int | None = None,
-    max_train_frames: int = 4000,
+    max_train_frames: int = 1500,
     layout: str | None = None,
     rotate: bool = True,
     boundary_correction: bool = True,
