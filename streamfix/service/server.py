@@ -201,7 +201,13 @@ class Service:
 
     # ------------------------------------------------------------------ control
     def stop(self, *_: object) -> None:
-        """Ask the loop to finish (signal-safe); pending frames are still flushed."""
+        """Ask the loop to finish (signal-safe); pending frames are still flushed.
+
+        A second request while the first is being served (e.g. Ctrl-C twice during a
+        long flush) gives up on the flush: KeyboardInterrupt, exit status 130.
+        """
+        if self._stop.is_set():
+            raise KeyboardInterrupt("second stop request: not waiting for the flush")
         self._stop.set()
 
     def install_signal_handlers(self) -> None:
