@@ -1,6 +1,8 @@
 """Properties of the fast baselines in streamfix.core.filters and .interpolate."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -172,3 +174,20 @@ def test_spline_interpolation_exact_for_cubic():
     yl, _ = interpolate_linear(xin, obs)
     assert np.allclose(ys, x, atol=1e-9)
     assert np.abs(yl - x).max() > 1e-3
+
+
+def test_running_median_matches_nanmedian_of_each_shrunken_window():
+    # the sort-based median must give np.nanmedian's value for every missing pattern:
+    # odd and even observed counts, all-missing windows (NaN), shrunken edge windows
+    rng = np.random.default_rng(3)
+    for window in (3, 5, 9, 19):
+        x = rng.normal(size=(40, 6, 3))
+        x[rng.random(x.shape) < 0.4] = np.nan
+        x[:, 1] = np.nan  # never observed
+        x[10:25, 2] = np.nan  # a gap longer than the window
+        m = filters.running_median(x, window)
+        half = window // 2
+        with warnings.catch_warnings():  # all-NaN windows warn in nanmedian
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ref = np.stack([np.nanmedian(x[max(0, t - half):t + half + 1], axis=0) for t in range(40)])
+        assert np.array_equal(m, ref, equal_nan=True)
