@@ -119,3 +119,42 @@ def test_pbd_projection_reaches_lengths_and_moves_low_confidence_more():
     move = np.linalg.norm(y - x, axis=2)
     # on bone (1, 2) the inferred end takes the larger share of the correction
     assert np.median(move[:, 2] / np.maximum(move[:, 1], 1e-12)) > 1.0
+
+
+def _local_poly_by_lapack(y, w, h):
+    """The local quadratic fit of stage 1 with every 3x3 system solved by LAPACK (LU)."""
+    from scipy.ndimage import correlate1d
+
+    k = np.arange(-h, h + 1, dtype=np.float64)
+    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
+    u = k / h
+    S = [correlate1d(w, K * u**m, axis=0, mode="constant") for m in range(5)]
+    R = [correlate1d(w * y, K * u**m, axis=0, mode="constant") for m in range(3)]
+    M = np.empty(y.shape + (3, 3))
+    for a in range(3):
+        for b in range(3):
+            M[..., a, b] = S[a + b]
+    M[..., 0, 0] += 1e-12
+    M[..., 1, 1] += 1e-9
+    M[..., 2, 2] += 1e-9
+    return np.linalg.solve(M, np.stack(R, axis=-1)[..., None])[..., 0, 0]
+
+
+@pytest.mark.parametrize("h", [2, 4, 9])
+def test_local_poly_closed_form_matches_lapack_solve(cmu30, h):
+    # the closed-form LDL^T (with LU where a pivot cancelled) gives LAPACK's fit on real
+    # mocap with Tukey-like weights, zero-weight runs and windows holding 1-2 samples
+    from streamfix.core.pipeline import _local_poly
+
+    gt, _ = cmu30
+    rng = np.random.default_rng(h)
+    y = gt[:60].reshape(60, -1)
+    w = rng.uniform(0, 1, size=y.shape) * (rng.random(y.shape) < 0.6)
+    w[10:30, :5] = 0.0          # nothing in the window
+    w[40:60, 5:10] = 0.0
+    w[45, 5:10] = 0.7           # a lone sample
+    w[50:52, 6] = 1.0           # two samples
+    fit, support = _local_poly(y, w, h)
+    ref = _local_poly_by_lapack(y, w, h)
+    assert np.abs(fit - ref).max() < 1e-9
+    assert np.all(support >= 0) and np.all(support[10 + h:30 - h, :5] == 0)
