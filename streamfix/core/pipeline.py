@@ -353,14 +353,23 @@ def project_bone_lengths_pbd(
     Q[rows, j] = 1.0
     P /= np.maximum(degree, 1.0)[None, :]  # scatter to joints and average over their bones
     Q /= np.maximum(degree, 1.0)[None, :]
+    # joint-major layout (J, T*3): each iteration is two row gathers and one matrix
+    # product scattering both ends' corrections, C = [-P^T, Q^T] (J, 2B)
+    n_bones = len(b)
+    C = np.concatenate([-P.T, Q.T], axis=1)
+    si = share_i.T[..., None]                                     # (B, T, 1)
+    sj = (1.0 - share_i).T[..., None]
+    xt = np.ascontiguousarray(x.transpose(1, 0, 2)).reshape(n_joints, 3 * n_frames)
+    V = np.empty((2 * n_bones, n_frames, 3))
     for _ in range(iterations):
-        u = x[:, i] - x[:, j]                                     # (T, B, 3)
-        norm = np.linalg.norm(u, axis=2)
-        err = np.where(norm > 1e-9, (norm - lengths) / np.maximum(norm, 1e-9), 0.0)
+        u = (xt[i] - xt[j]).reshape(n_bones, n_frames, 3)        # (B, T, 3)
+        norm = np.sqrt(np.einsum("btc,btc->bt", u, u))
+        err = np.where(norm > 1e-9, (norm - lengths[:, None]) / np.maximum(norm, 1e-9), 0.0)
         corr = u * err[..., None]                                 # the full length error along u
-        x -= np.tensordot(corr * share_i[..., None], P, axes=([1], [0])).transpose(0, 2, 1)
-        x += np.tensordot(corr * (1.0 - share_i)[..., None], Q, axes=([1], [0])).transpose(0, 2, 1)
-    return x
+        np.multiply(corr, si, out=V[:n_bones])
+        np.multiply(corr, sj, out=V[n_bones:])
+        xt += C @ V.reshape(2 * n_bones, 3 * n_frames)
+    return xt.reshape(n_joints, n_frames, 3).transpose(1, 0, 2).copy()
 
 
 # --------------------------------------------------------------------------- the pipeline
