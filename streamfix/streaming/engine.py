@@ -237,6 +237,7 @@ class WindowOutput:
     state: Any = None
     iterations: int = 0
     converged: bool = True
+    bridged: dict = field(default_factory=dict)
 
 
 def alm_window_solver(
@@ -265,18 +266,32 @@ def alm_window_solver(
 
 
 def default_window_solver() -> WindowSolver:
-    """``streamfix.core.pipeline.clean_window`` when present, else the ALM adapter."""
+    """``streamfix.core.pipeline.clean_window`` behind the long-gap bridge
+    (:class:`~streamfix.streaming.bridging.BridgingWindowSolver`: joints missing for
+    >= 1/3 of a window and blackouts are filled from PCA on the body's clean history or
+    the learned prior first), else the ALM adapter."""
     try:
-        from ..core.pipeline import clean_window  # type: ignore[attr-defined]
+        from ..core.pipeline import clean_window  # type: ignore[attr-defined]  # noqa: F401
     except ImportError:
         return alm_window_solver
-    return clean_window
+    from .bridging import BridgingWindowSolver
+
+    return BridgingWindowSolver()
+
+
+def _wants_history(solver: WindowSolver) -> bool:
+    """True when the solver takes ``history=`` (itself or one wrapper level, ``.solver``)."""
+    if getattr(solver, "wants_history", False):
+        return True
+    inner = getattr(solver, "solver", None)
+    return inner is not None and inner is not solver and bool(getattr(inner, "wants_history", False))
 
 
 def _with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any:
     """A copy of a solver config with its iteration cap set to ``n`` (if it has one)."""
     if n is None:
         return config
+    solver = getattr(solver, "base_solver", solver)  # a wrapping solver: its base's config
     if config is None:
         if solver is alm_window_solver:
             from ..core.alm import SolverParams
@@ -346,6 +361,9 @@ class Histogram:
 # --------------------------------------------------------------------------- internals
 BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-window estimates
 BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
+HISTORY_S = 10.0
+"""Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
+solvers with ``wants_history`` (PCA gap filling trains on it)."""
 RECOVERED_CONFIDENCE = 0.5
 """Confidence the engine gives a joint it recovered (protocol/SPEC.md: "its confidence is
 the service's estimate"): the sensor's own value for a guessed joint (inferred)."""
@@ -364,7 +382,7 @@ class _Job:
 
     __slots__ = (
         "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
-        "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final",
+        "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final", "history",
     )
 
     def __init__(self, body: "_Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
@@ -380,6 +398,7 @@ class _Job:
         self.converged = False
         self.error: str | None = None
         self.final = final
+        self.history: np.ndarray | None = None
 
 
 class _Body:
@@ -420,6 +439,17 @@ class _Body:
         self.clean_lengths: np.ndarray | None = None
         self.prior_lengths = prior_lengths
         self.live_path: LivePath | None = None
+        # the body's recent clean output for history-trained solvers (ring, oldest first on read)
+        self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
+        self.hist_n = 0
+
+    def history(self) -> np.ndarray:
+        """``(T_h, J, 3)`` copy of the kept clean history, oldest frame first."""
+        n, cap = self.hist_n, len(self.hist)
+        if n <= cap:
+            return self.hist[:n].copy()
+        k = n % cap
+        return np.concatenate([self.hist[k:], self.hist[:k]])
 
 
 class _Pending:
@@ -470,6 +500,7 @@ class StreamEngine:
         self.skeleton = skeleton
         self.cfg = config if config is not None else EngineConfig()
         self.solver = window_solver if window_solver is not None else default_window_solver()
+        self._history = _wants_history(self.solver)
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
         if self.cfg.bone_lengths is not None and len(self.cfg.bone_lengths) != skeleton.n_bones:
@@ -503,6 +534,7 @@ class StreamEngine:
                 "windows_scheduled", "windows_solved", "windows_skipped", "windows_abandoned",
                 "solver_errors", "solver_iterations", "solver_not_converged", "joints_recovered",
                 "gaps_not_filled", "degrade_events",
+                "joints_bridged_pca", "joints_bridged_prior", "joints_bridged_hold",
             )
         }
         self.live_hist = Histogram()
@@ -802,6 +834,10 @@ class StreamEngine:
             body, win.start, win.end, win.positions.copy(), win.confidence.copy(),
             self._robust_lengths(body), self._iterations(), final,
         )
+        if self._history:
+            # the clean output of the frames before the window (row -1 = frame start - 1)
+            h = body.history()
+            job.history = h[: max(0, len(h) - max(0, body.hist_n - win.start))]
         body.jobs.append(job)
         body.last_scheduled_end = end
         if not win.valid.any():
@@ -868,6 +904,8 @@ class StreamEngine:
                     state = None
         config = _with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
         kwargs: dict[str, Any] = {"state": state}
+        if self._history:
+            kwargs["history"] = job.history
         if config is not None:
             kwargs["config"] = config
         t0 = time.perf_counter()
@@ -881,6 +919,12 @@ class StreamEngine:
             job.result_pos, job.result_rec = pos, rec
             job.n_iter = int(getattr(res, "iterations", 0) or 0)
             job.converged = bool(getattr(res, "converged", True))
+            bridged = getattr(res, "bridged", None)
+            if bridged:
+                with self._lock:
+                    for src, k in bridged.items():
+                        key = f"joints_bridged_{src}"
+                        self.counters[key] = self.counters.get(key, 0) + int(k)
             new_state = getattr(res, "state", None)
             body.solver_state = new_state
             body.solver_state_end = job.end if new_state is not None else -1
@@ -1005,6 +1049,12 @@ class StreamEngine:
                     pend.missing -= 1
                     self.counters["joints_recovered"] += int(rec.sum())
                     self._sample_clean_bones(body, pos)
+                if self._history:  # observed samples of the clean output; row = timeline frame
+                    body.hist[body.hist_n % len(body.hist)] = np.where(rec[:, None], np.nan, pos)
+            elif self._history:  # absent: a NaN row keeps the history aligned with the timeline
+                body.hist[body.hist_n % len(body.hist)] = np.nan
+            if self._history:
+                body.hist_n += 1
             body.final_upto += 1
 
     def _sample_clean_bones(self, body: _Body, pos: np.ndarray) -> None:
