@@ -4,9 +4,13 @@ The file is read with :func:`streamfix.io.read_motion`, passed frame by frame th
 the same :class:`~streamfix.streaming.engine.StreamEngine` that ``streamfix serve``
 runs (synchronous mode, so the result is deterministic and equals serve's ``clean``
 output), and written with :func:`streamfix.io.write_motion` (format from OUT's
-extension). Marker files without bones (C3D), and files with a gap longer than one
-window, first go through the gap filler (``streamfix.gapfill.fill_motion_gaps``) when
-it is installed: a window solver cannot bridge a gap longer than its window. A progress bar is drawn
+extension). Marker files without bones (C3D), and joint files with a gap of at least a
+third of a window (``streamfix.streaming.bridging.long_gap_frames``, the length the
+streaming solver would bridge itself), first go through the gap filler
+(``streamfix.gapfill.fill_motion_gaps``, Li et al. PCA trained on the take's own
+observed samples plus ``--training`` reference takes): offline the filler sees both
+ends of every gap. Filled samples are flagged recovered in the output (kept by
+``.sfrec``; a C3D or CSV file has no such flag) and counted in the summary. A progress bar is drawn
 on stderr when it is a terminal; one summary line goes to stdout.
 """
 from __future__ import annotations
@@ -37,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write the frames synthesised for dropped sensor frames (timestamp gaps)")
     parser.add_argument("--no-gapfill", action="store_true",
                         help="do not run the gap filler on marker files before cleaning")
+    parser.add_argument("--training", action="append", default=None, metavar="FILE_OR_DIR",
+                        help="reference takes of the same skeleton / marker set for the gap filler "
+                             "(files or directories; repeatable)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
 
 
@@ -102,15 +109,30 @@ def run(args: argparse.Namespace) -> int:
     source = motion
     notes = []
     long_gap = _longest_gap(~motion.observed)
-    window = args.window if args.window is not None else EngineConfig(rate_hz=motion.rate_hz).window
-    if (motion.skeleton.n_bones == 0 or long_gap > window) and not args.no_gapfill:
+    gapfilled = None
+    try:
+        window = args.window if args.window is not None else EngineConfig(rate_hz=motion.rate_hz).window
+    except ValueError:
+        window = 60
+    from ..streaming.bridging import long_gap_frames
+
+    want = motion.skeleton.n_bones == 0 or long_gap >= long_gap_frames(window)
+    if want and not args.no_gapfill and not motion.observed.all():
         try:
             from ..gapfill import fill_motion_gaps  # type: ignore[attr-defined]
         except ImportError:
             notes.append("no gap filler installed")
         else:
-            motion = fill_motion_gaps(motion)
-            notes.append("gaps filled by streamfix.gapfill")
+            training = getattr(args, "training", None)
+            try:
+                filled = fill_motion_gaps(motion, training=training)
+            except (OSError, ValueError) as exc:
+                print(f"streamfix clean: gap filling: {exc}", file=sys.stderr)
+                return 1
+            gapfilled = filled.recovered & ~motion.observed if filled.recovered is not None else None
+            motion = filled
+            n_train = filled.meta.get("gapfill", {}).get("training_takes")
+            notes.append(f"gaps filled by streamfix.gapfill ({n_train} training takes)")
     try:
         lengths = None
         if args.skeleton_lengths is not None:
@@ -126,18 +148,28 @@ def run(args: argparse.Namespace) -> int:
         cleaned, metrics = clean_motion(motion, config, keep_filled=args.keep_filled, progress=progress)
     finally:
         progress.close()
+    if gapfilled is not None and cleaned.recovered is not None and gapfilled.any():
+        # the engine saw the filled samples as data: keep them flagged as recovered
+        idx = np.searchsorted(np.asarray(source.timestamps), np.asarray(cleaned.timestamps))
+        idx = np.clip(idx, 0, source.n_frames - 1)
+        same = np.isclose(np.asarray(source.timestamps)[idx], cleaned.timestamps, atol=0.25 / source.rate_hz)
+        rec = cleaned.recovered.copy()
+        rec[same] |= gapfilled[idx[same]]
+        cleaned.recovered = rec
+        cleaned.confidence = np.where(rec & np.isfinite(cleaned.positions).all(axis=2),
+                                      np.minimum(cleaned.confidence, 0.5), cleaned.confidence)
     try:
         write_motion(cleaned, args.output)
     except (OSError, ValueError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 1
     if not args.quiet:
-        print(_summary(args.input, source, cleaned, metrics, config, notes))
+        print(_summary(args.input, source, cleaned, metrics, config, notes, gapfilled))
     return 0 if cleaned.n_frames >= n_frames_in else 1
 
 
-def _summary(path, source, cleaned, metrics: dict, config, notes: list[str]) -> str:
-    """One line: frames, joints recovered, mean change (mm) over the input's observed joints."""
+def _summary(path, source, cleaned, metrics: dict, config, notes: list[str], gapfilled=None) -> str:
+    """One line: frames, joints recovered, gap-filled samples, mean change (mm) over the input's observed joints."""
     recovered = int(cleaned.recovered.sum()) if cleaned.recovered is not None else 0
     total = cleaned.n_frames * cleaned.n_joints
     change = float("nan")
@@ -150,6 +182,7 @@ def _summary(path, source, cleaned, metrics: dict, config, notes: list[str]) -> 
     return (
         f"{Path(path).name}: {cleaned.n_frames} frames x {cleaned.n_joints} joints, "
         f"{recovered} joint-frames recovered ({100.0 * recovered / max(total, 1):.1f} %), "
+        f"{0 if gapfilled is None else int(gapfilled.sum())} gap samples filled, "
         f"mean change {change:.1f} mm, {metrics.get('frames_filled', 0)} dropped frames filled "
         f"(window {config.window}, hop {config.hop}, lookahead {config.lookahead} frames){extra}"
     )
