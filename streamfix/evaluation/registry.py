@@ -103,7 +103,22 @@ METHODS: dict[str, Method] = {
     "linear": _interp("linear"),
     "spline": _interp("spline"),
 }
-ALL_METHODS = tuple(METHODS)
+
+
+def _protocol_methods(modules: tuple[str, ...] = ("occlusion", "long_gaps")) -> tuple[str, ...]:
+    """Method names that protocol modules run themselves (``METHODS`` of each module
+    present: the occlusion protocol's ``prior_latent`` etc., the long-gap protocol's ``pca`` etc.)."""
+    names: list[str] = []
+    for mod in modules:
+        try:
+            module = importlib.import_module(f"streamfix.evaluation.{mod}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"streamfix.evaluation.{mod}":
+                continue
+            raise
+        names += [str(n) for n in getattr(module, "METHODS", ())]
+    return tuple(names)
+
 
 
 def run_method(name: str, positions: np.ndarray, confidence: np.ndarray, bones: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -178,3 +193,9 @@ def discover_protocols() -> dict[str, Callable]:
             raise
         found.update(getattr(module, "PROTOCOLS", {}))
     return found
+
+
+# every name ``streamfix eval --methods`` accepts: the window methods above, then the
+# protocol-specific ones (a protocol scores the subset it knows). Last in the module:
+# the protocol modules import ``load_motion`` from here.
+ALL_METHODS = tuple(dict.fromkeys(tuple(METHODS) + _protocol_methods()))
