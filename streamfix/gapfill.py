@@ -62,7 +62,7 @@ def fill_motion_gaps(
     training: pg.TrainingSet | np.ndarray | Iterable | str | Path | None = None,
     *,
     energy: float = pg.DEFAULT_ENERGY,
-    n_partners: int | None = pg.DEFAULT_PARTNERS,
+    n_partners: int | tuple[int, ...] | None = pg.DEFAULT_PARTNERS,
     rigid_pairs: int | None = None,
     blackout_window: int | None = None,
 ) -> Motion:

@@ -37,10 +37,12 @@ Choices the paper leaves open, made here and documented:
   and makes the result independent of the eigen-solver's arbitrary choices.
 * **Templates** (:func:`fill_gaps`): samples are grouped by template and Eq. (1)-(4)
   run once per template. With ``n_partners=None`` the template is the paper's: the
-  frame's observed joints predict all its missing ones. By default
-  (``DEFAULT_PARTNERS = 4``) the matrix holds one missing joint and the 4 observed
-  joints whose distance to it varies least in training ("local templates"; on the
-  CMU takes this cuts the 100-frame-gap error ~3x against the whole-body template).
+  frame's observed joints predict all its missing ones. By default the matrix holds
+  one missing joint and the k observed joints whose distance to it varies least in
+  training ("local templates"; on the CMU takes this cuts the 100-frame-gap error
+  3-10x against the whole-body template); k is chosen per joint among
+  ``DEFAULT_PARTNERS = (3, 6)`` by the error on the joint's observed samples
+  within 30 frames of its gaps (observed data only, never the gap).
   Coordinates are expressed in the frame of the observed joints (centroid removed,
   rotated onto their mean training pose by Kabsch) and centred on the training mean
   (the "scaled to the same level in advance" of Section III-A), so training takes
@@ -86,9 +88,11 @@ __all__ = [
 DEFAULT_ENERGY = 0.9999
 """Default explained-energy threshold of the rank rule (fraction of variance kept)."""
 
-DEFAULT_PARTNERS = 4
+DEFAULT_PARTNERS = (3, 6)
 """Local templates: each missing joint is predicted from this many observed joints whose
-distance to it varies least in training (None = every observed joint, the paper's
+distance to it varies least in training; with several candidates, each joint takes
+the count whose estimates best match its observed samples within
+``validation_frames`` of its gaps (None = every observed joint, the paper's
 whole-matrix template)."""
 
 _EPS = 1e-12
@@ -476,7 +480,8 @@ def fill_gaps(
     layout: str | None = None,
     rotate: bool = True,
     boundary_correction: bool = True,
-    n_partners: int | None = DEFAULT_PARTNERS,
+    n_partners: int | tuple[int, ...] | None = DEFAULT_PARTNERS,
+    validation_frames: int = 30,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fill joints missing in frames where at least ``min_observed_joints`` are observed.
 
@@ -509,7 +514,7 @@ def fill_gaps(
     tr_obs = ts.observed
     T_len, J, _ = x.shape
     need = ~obs & enough[:, None]                            # samples this function fills
-    min_frames = min_train_frames or max(2 * 3 * (J if n_partners is None else n_partners + 1), 100)
+    min_frames = min_train_frames or max(2 * 3 * J, 100)
     # probes: observed samples next to a gap (for the boundary correction)
     probe = np.zeros_like(need)
     if boundary_correction:
@@ -527,17 +532,10 @@ def fill_gaps(
         q_tgt = ~q_pred
         ok = q_pred.sum(axis=1) >= min_observed_joints
     else:
-        # local templates: one target joint, its n_partners most rigid observed partners
-        rank = _partner_ranking(tr, tr_obs)                  # (J, J-1)
-        qt, qj = np.nonzero(need | probe)
-        avail = obs[qt[:, None], rank[qj]].copy()            # (N, J-1) partner observed?
-        avail &= np.cumsum(avail, axis=1) <= n_partners
-        q_pred = np.zeros((qt.size, J), dtype=bool)
-        q_pred[np.repeat(np.arange(qt.size), J - 1), rank[qj].ravel()] = avail.ravel()
-        q_tgt = np.zeros_like(q_pred)
-        q_tgt[np.arange(qt.size), qj] = True
-        q_t, q_j = qt, qj
-        ok = q_pred.sum(axis=1) >= min(min_observed_joints, n_partners)
+        return _fill_local(x, obs, need, probe, tr, tr_obs, enough, n_partners, min_observed_joints,
+                           dict(piece_frames=piece_frames, energy=energy, r_max=r_max, rotate=rotate,
+                                max_train_frames=max_train_frames, context_frames=context_frames),
+                           min_train_frames, boundary_correction, validation_frames)
     q_probe = probe[q_t, np.maximum(q_j, 0)] & (q_j >= 0)
     q_t, q_j, q_probe, q_pred, q_tgt = q_t[ok], q_j[ok], q_probe[ok], q_pred[ok], q_tgt[ok]
     keys, inv = np.unique(np.hstack([q_pred, q_tgt]), axis=0, return_inverse=True)
@@ -571,6 +569,103 @@ def fill_gaps(
         if qp.any():                                         # probe residuals e = x - x_hat
             resid[frames[qp], qj[qp]] = x[frames[qp], qj[qp]] - est[qp, col[qp]]
     filled &= need
+    if boundary_correction and filled.any():
+        out = out + _residual_field(resid, obs, filled)
+    out[obs] = x[obs]
+    return out, filled
+
+
+def _local_estimates(x, obs, qt, qj, tr, tr_obs, rank, k, min_observed_joints, kw, min_frames, optional=None):
+    """Eq. (1)-(4) estimates ``(N, 3)`` of joint ``qj`` at frame ``qt`` from its ``k`` most
+    rigid partners observed there (NaN where no estimate). ``optional`` queries are
+    answered only when their template is needed by a required one anyway."""
+    T_len, J, _ = x.shape
+    est_all = np.full((qt.size, 3), np.nan)
+    avail = obs[qt[:, None], rank[qj]].copy()                # (N, J-1) partner observed?
+    avail &= np.cumsum(avail, axis=1) <= k
+    q_pred = np.zeros((qt.size, J), dtype=bool)
+    q_pred[np.repeat(np.arange(qt.size), J - 1), rank[qj].ravel()] = avail.ravel()
+    ok = np.flatnonzero(q_pred.sum(axis=1) >= min(min_observed_joints, k))
+    if ok.size == 0:
+        return est_all
+    key = np.hstack([q_pred[ok], qj[ok, None]])
+    keys, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    if optional is not None:
+        needed = np.zeros(keys.shape[0], dtype=bool)
+        needed[inv[~optional[ok]]] = True
+        keep = needed[inv]
+        ok, inv = ok[keep], inv[keep]
+    ctx = kw["context_frames"]
+    for p in np.unique(inv):  # one template per (target joint, observed partners)
+        sel = ok[inv == p]
+        sel = sel[np.argsort(qt[sel], kind="stable")]
+        frames = qt[sel]
+        pat = keys[p, :J].astype(bool)
+        tgt = np.zeros(J, dtype=bool)
+        tgt[keys[p, J]] = True
+        lo, hi = max(frames[0] - ctx // 2, 0), min(frames[-1] + ctx // 2 + 1, T_len)
+        near = np.arange(lo, hi)
+        near = near[obs[near][:, pat].all(axis=1)]
+        est = _fill_pattern(x, pat, tgt, frames, near, tr, tr_obs, kw["piece_frames"], kw["energy"], kw["r_max"],
+                            min_frames, kw["rotate"], kw["max_train_frames"])
+        if est is not None:
+            est_all[sel] = est[:, 0]
+    return est_all
+
+
+def _fill_local(x, obs, need, probe, tr, tr_obs, enough, n_partners, min_observed_joints, kw, min_train_frames,
+                boundary_correction, validation_frames):
+    """Local templates; with several ``n_partners`` candidates, each joint takes the one
+    whose estimates of its observed samples within ``validation_frames`` of its gaps
+    are closest to the observations (a choice made on observed data only)."""
+    T_len, J, _ = x.shape
+    cands = (n_partners,) if np.isscalar(n_partners) else tuple(n_partners)
+    rank = _partner_ranking(tr, tr_obs)                      # (J, J-1)
+    val = np.zeros_like(need)
+    if len(cands) > 1 and validation_frames > 0:
+        c = np.concatenate([np.zeros((1, J), dtype=np.int64), np.cumsum(need, axis=0)])
+        idx = np.arange(T_len)
+        near = (c[np.minimum(idx + validation_frames + 1, T_len)] - c[np.maximum(idx - validation_frames, 0)]) > 0
+        val = near & obs & enough[:, None]
+    qt, qj = np.nonzero(need | probe | val)
+    ests = []
+    for k in cands:
+        mf = min_train_frames or max(2 * 3 * (k + 1), 100)
+        ests.append(_local_estimates(x, obs, qt, qj, tr, tr_obs, rank, int(k), min_observed_joints, kw, mf,
+                                     optional=val[qt, qj] & ~need[qt, qj] & ~probe[qt, qj]))
+    ests = np.stack(ests)                                    # (C, N, 3)
+    choice = np.zeros(qt.size, dtype=np.intp)
+    if len(cands) > 1:
+        isval = val[qt, qj]
+        err = np.linalg.norm(ests - x[qt, qj][None], axis=2)  # (C, N)
+        err = np.where(isval[None] & np.isfinite(err), err, 0.0)
+        cnt = np.zeros((len(cands), J))
+        tot = np.zeros((len(cands), J))
+        for ci in range(len(cands)):                          # loop over candidates only
+            np.add.at(tot[ci], qj, err[ci])
+            np.add.at(cnt[ci], qj, isval & np.isfinite(ests[ci]).all(axis=1))
+        score = np.where(cnt > 0, tot / np.maximum(cnt, 1), np.inf)
+        score[:, np.all(~np.isfinite(score), axis=0)] = 0.0   # no validation: first candidate
+        best_j = np.argmin(score, axis=0)                     # (J,)
+        choice = best_j[qj]
+        # a chosen candidate without an estimate falls back to any candidate that has one
+        chosen = ests[choice, np.arange(qt.size)]
+        miss = ~np.isfinite(chosen).all(axis=1)
+        if miss.any():
+            anyok = np.isfinite(ests).all(axis=2)             # (C, N)
+            choice[miss] = np.argmax(anyok[:, miss], axis=0)
+    est = ests[choice, np.arange(qt.size)]
+    have = np.isfinite(est).all(axis=1)
+    out = x.copy()
+    out[~obs] = np.nan
+    filled = np.zeros_like(obs)
+    g = need[qt, qj] & have
+    out[qt[g], qj[g]] = est[g]
+    filled[qt[g], qj[g]] = True
+    resid = np.full(x.shape, np.nan)
+    pr = probe[qt, qj] & have
+    resid[qt[pr], qj[pr]] = x[qt[pr], qj[pr]] - est[pr]
     if boundary_correction and filled.any():
         out = out + _residual_field(resid, obs, filled)
     out[obs] = x[obs]

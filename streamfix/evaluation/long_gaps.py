@@ -239,14 +239,13 @@ def run_long_gaps(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> 
     for k, (path, motion) in enumerate(motions):
         truth = motion.positions
         obs_all = motion.observed
-        ctx_base = {"partners": pg._partner_ranking(np.where(obs_all[..., None], truth, np.nan), obs_all),
-                    "window": max(int(round(BLACKOUT_WINDOW_S * motion.rate_hz)), 20)}
+        ctx_base = {"window": max(int(round(BLACKOUT_WINDOW_S * motion.rate_hz)), 20)}
         if not obs_all.all():
             # real gaps: no ground truth, judge plausibility of the fill
             pairs = pg.estimate_rigid_pairs(truth, obs_all, k=pg_pairs(motion))
             lo, hi = pg.pair_distance_ranges(truth, obs_all, pairs)
             own = np.where(obs_all[..., None], truth, np.nan)
-            ctx = dict(ctx_base, training=pg.TrainingSet([own]),
+            ctx = dict(ctx_base, training=pg.TrainingSet([own]), partners=pg._partner_ranking(own, obs_all),
                        training_ref=pg.TrainingSet([own] + _others(motions, k)))
             for name in names:
                 pred, dt = _run_method(name, truth, obs_all, ctx)
@@ -264,7 +263,8 @@ def run_long_gaps(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> 
             miss, gaps = make_gaps(motion.n_frames, motion.n_joints, count, length, rng)
             obs = ~miss
             own = np.where(obs[..., None], truth, np.nan)
-            ctx = dict(ctx_base, training=pg.TrainingSet([own]),
+            # gapfill's partner markers are chosen on the corrupted take too (never the gap)
+            ctx = dict(ctx_base, training=pg.TrainingSet([own]), partners=pg._partner_ranking(own, obs),
                        training_ref=pg.TrainingSet([own] + _others(motions, k)))
             gap_idx = [(np.arange(s, e), np.full(e - s, j)) for j, s, e in gaps]
             for name in names:
