@@ -80,6 +80,24 @@ def _shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
     return out
 
 
+def length_mode_with_support(
+    samples: np.ndarray, fraction: float = 0.1, tolerance_m: float = 0.005
+) -> tuple[np.ndarray, np.ndarray]:
+    """Shorth-mode bone lengths of ``samples`` ``(T, B)`` metres (NaN = no sample) and their support.
+
+    Returns ``(lengths (B,), support (B,) int)``: ``support`` counts the samples within
+    ``tolerance_m`` of each estimate. A mode found from a handful of frames can sit on
+    two corrupted samples that happen to agree; callers use the support to decide
+    whether to trust it (measured on CMU 131 at 20 % corruption: the first 16-frame
+    window of a stream estimated a 0 m bone as 0.217 m from 2 agreeing samples).
+    """
+    values = np.asarray(samples, dtype=np.float64)
+    lengths = _shorth_mode(values, fraction)
+    with np.errstate(invalid="ignore"):
+        support = (np.abs(values - lengths[None, :]) <= tolerance_m).sum(axis=0)
+    return lengths, support
+
+
 def estimate_bone_lengths(
     positions: np.ndarray,
     bones: np.ndarray,

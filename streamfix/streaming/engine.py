@@ -106,6 +106,7 @@ import numpy as np
 
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
+from ..core.isometry import length_mode_with_support
 from .live import LiveConfig, LivePath
 from .ring import RingBuffer
 
@@ -361,6 +362,8 @@ class Histogram:
 # --------------------------------------------------------------------------- internals
 BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-window estimates
 BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
+BONE_SUPPORT_FRAMES = 4  # raw samples that must agree with a bone's mode before it is trusted
+BONE_SUPPORT_TOL_M = 0.005  # ... to within this (m)
 HISTORY_S = 10.0
 """Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
 solvers with ``wants_history`` (PCA gap filling trains on it)."""
@@ -437,6 +440,9 @@ class _Body:
         self.clean_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
         self.clean_bones_n = 0
         self.clean_lengths: np.ndarray | None = None
+        # per-frame bone lengths of the raw input where both ends are tracked (ring, NaN = none)
+        self.raw_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
+        self.raw_bones_end = 0  # absolute frame index up to which raw_bones is filled
         self.prior_lengths = prior_lengths
         self.live_path: LivePath | None = None
         # the body's recent clean output for history-trained solvers (ring, oldest first on read)
@@ -795,6 +801,36 @@ class StreamEngine:
                 self._begin_end(st, body)
         self._drain(st, out)
 
+    def _raw_history_lengths(self, body: _Body) -> np.ndarray | None:
+        """Shorth-mode bone lengths over the last ``BONE_MEMORY_S`` of raw input, if well supported.
+
+        Only frames where both ends of a bone are *tracked* count. Trusted only when every
+        bone has at least ``BONE_SUPPORT_FRAMES`` samples within ``BONE_SUPPORT_TOL_M`` of
+        its mode; otherwise None (the clean-history median or per-window estimate is
+        used). Unlike the clean-output median this does not feed back on itself: a wrong
+        early estimate baked into the clean output cannot persist. Measured on CMU 131_01
+        / 131_02 at 30 Hz (seeds 1310, 1320, 1, 2, 3, 4), streaming clean AJE / offline
+        whole-sequence AJE: 1.01-1.56x with the clean-output median alone, 0.76-1.22x
+        with this first.
+        """
+        if not len(self.bones):
+            return None
+        win = body.ring.window()
+        first = max(body.raw_bones_end, win.start)
+        if win.end > first:
+            seg = slice(first - win.start, win.end - win.start)
+            pos = win.positions[seg]
+            lengths = np.linalg.norm(pos[:, self.bones[:, 1]] - pos[:, self.bones[:, 0]], axis=2)
+            conf = win.confidence[seg]
+            tracked = np.minimum(conf[:, self.bones[:, 0]], conf[:, self.bones[:, 1]]) >= 1.0
+            rows = np.arange(first, win.end) % len(body.raw_bones)
+            body.raw_bones[rows] = np.where(tracked, lengths, np.nan)
+            body.raw_bones_end = win.end
+        est, support = length_mode_with_support(body.raw_bones, tolerance_m=BONE_SUPPORT_TOL_M)
+        if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all():
+            return est
+        return None
+
     def _robust_lengths(self, body: _Body) -> np.ndarray | None:
         """``(B,)`` bone lengths (m) for the solver and the live projection.
 
@@ -808,6 +844,9 @@ class StreamEngine:
         """
         if self._fixed_lengths is not None:
             return self._fixed_lengths
+        raw = self._raw_history_lengths(body)
+        if raw is not None:
+            return raw
         need = min(max(1, int(round(BONE_HISTORY_S * self.cfg.rate_hz))), len(body.clean_bones))
         if len(self.bones) and body.clean_bones_n >= need and body.clean_lengths is not None:
             return body.clean_lengths
