@@ -400,9 +400,9 @@ def _normalise_frames(Z: np.ndarray, n_pred: int, ref: np.ndarray | None, rotate
         R = np.broadcast_to(np.eye(3), (Z.shape[0], 3, 3))
         return L, cen, R, ref if ref is not None else L[:, :n_pred].mean(axis=0)
     if ref is None:
-        sub = L[:: max(L.shape[0] // 300, 1), :n_pred]       # <= ~300 frames set the reference
+        sub = L[:: max(L.shape[0] // 150, 1), :n_pred]       # <= ~150 frames set the reference
         ref = sub[0]
-        for _ in range(3):                                   # generalised Procrustes, 3 rounds
+        for _ in range(2):                                   # generalised Procrustes, 2 rounds
             ref = (sub @ _kabsch(sub, ref)).mean(axis=0)
     R = _kabsch(L[:, :n_pred], ref)
     return L @ R, cen, R, ref
