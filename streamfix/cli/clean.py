@@ -131,8 +131,11 @@ def run(args: argparse.Namespace) -> int:
                 return 1
             gapfilled = filled.recovered & ~motion.observed if filled.recovered is not None else None
             motion = filled
-            n_train = filled.meta.get("gapfill", {}).get("training_takes")
-            notes.append(f"gaps filled by streamfix.gapfill ({n_train} training takes)")
+            info = filled.meta.get("gapfill", {})
+            note = f"gaps filled by streamfix.gapfill ({info.get('training_takes')} training takes"
+            if info.get("plausibility") is not None:
+                note += f", rigid-pair plausibility {info['plausibility']:.2f}"
+            notes.append(note + ")")
     try:
         lengths = None
         if args.skeleton_lengths is not None:

@@ -74,6 +74,10 @@ MIN_HISTORY_S = 3.0
 """Seconds of clean history (with the joints to fill observed) before PCA is trusted."""
 FILL_CONFIDENCE = 0.25
 """Confidence of a bridged sample as the solver sees it (below 'inferred' 0.5)."""
+PRIOR_INIT = "off"
+"""Prior as the solver's start on the frames entering a window: 'off', 'bridged' (only
+windows that had long gaps) or 'always' (every window with a missing sample, when the
+skeleton has a prior). See :meth:`BridgingWindowSolver.prior_start`."""
 
 
 def long_gap_frames(n_frames: int) -> int:
@@ -141,6 +145,7 @@ class BridgingWindowSolver:
         use_prior: bool | None = None,
         min_history_s: float = MIN_HISTORY_S,
         fill_confidence: float = FILL_CONFIDENCE,
+        prior_init: str = PRIOR_INIT,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -149,6 +154,9 @@ class BridgingWindowSolver:
         bad = [s for s in sources if s not in ("pca", "prior")]
         if bad:
             raise ValueError(f"sources must be from ('pca', 'prior'), got {bad}")
+        if prior_init not in ("off", "bridged", "always"):
+            raise ValueError(f"prior_init must be 'off', 'bridged' or 'always', got {prior_init!r}")
+        self.prior_init = prior_init
         self.base = base
         self.sources = tuple(sources)
         self.use_prior = use_prior
@@ -238,6 +246,33 @@ class BridgingWindowSolver:
         need = max(1, int(round(self.min_history_s * rate_hz)))
         return int((fin[:, joints].all(axis=1) & (fin.sum(axis=1) >= BLACKOUT_JOINTS)).sum()) >= need
 
+    def prior_start(self, positions: np.ndarray, observed: np.ndarray, rate_hz: float, state: Any, init: Any):
+        """(state, init) with the prior's D(E(Y)) as the solver's start (issue 4 item 4).
+
+        Warm windows: the frames entering the window (``state.fresh`` trailing frames,
+        which the solver would otherwise start from their linearly gap-filled data) start
+        from D(E(Y)) (observed joints keep their values); cold windows: ``init`` = D(E(Y)).
+        """
+        from dataclasses import replace
+
+        from ..prior.init import prior_initial_guess
+
+        guess = prior_initial_guess(positions, observed, rate_hz, method="encode")
+        if not np.isfinite(guess).all():
+            return state, init
+        if state is None:
+            return None, guess if init is None else init
+        fresh = int(getattr(state, "fresh", 0) or 0)
+        if fresh <= 0 or getattr(state, "A", None) is None or state.A.shape != guess.shape:
+            return state, init
+        new = slice(guess.shape[0] - fresh, None)
+        fields = {}
+        for name in ("A", "N", "Ct"):
+            arr = getattr(state, name).copy()
+            arr[new] = guess[new]
+            fields[name] = arr
+        return replace(state, fresh=0, **fields), init
+
     def __call__(
         self,
         positions: np.ndarray,
@@ -257,7 +292,11 @@ class BridgingWindowSolver:
         kwargs: dict[str, Any] = {"state": state, "init": init}
         if config is not None:
             kwargs["config"] = config
-        if obs.all() or not obs.any() or not long_missing_mask(obs, len(obs)).any():
+        if obs.all() or not obs.any():
+            return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
+        if not long_missing_mask(obs, len(obs)).any():
+            if self.prior_init == "always" and self.prior_ok(x.shape[1]):
+                kwargs["state"], kwargs["init"] = self.prior_start(x, obs, rate_hz, state, init)
             return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
         filled, bridged, counts = self.bridge(x, obs, rate_hz, history)
         if not bridged.any():
@@ -266,6 +305,8 @@ class BridgingWindowSolver:
         if init is not None:
             init = np.where(bridged[..., None], filled, init)
             kwargs["init"] = init
+        if self.prior_init != "off" and self.prior_ok(x.shape[1]) and not (obs | bridged).all():
+            kwargs["state"], kwargs["init"] = self.prior_start(filled, obs | bridged, rate_hz, state, kwargs["init"])
         res = self.base(filled, conf_in, bones, bone_lengths, rate_hz, **kwargs)
         rec = getattr(res, "recovered", None)
         rec = bridged.copy() if rec is None else (np.asarray(rec, dtype=bool) | bridged)
