@@ -5,6 +5,9 @@
 * :mod:`.engine` -- :class:`StreamEngine` / :class:`ThreadedStreamEngine`: frames in,
   ``live`` and ``clean`` frames out (hop, lookahead, overlap-add, drops, bodies, degradation).
 * :mod:`.offline` -- :func:`clean_motion`: a whole motion through the same engine.
+* :mod:`.bridging` -- the default window solver: joints missing for >= 1/3 of a window
+  and blackouts are filled (PCA on the body's clean history, the prior's D(z*) for
+  Kinect v2) before ``clean_window``, and flagged recovered.
 """
 from .engine import EngineConfig, StreamEngine, ThreadedStreamEngine
 from .live import LiveConfig

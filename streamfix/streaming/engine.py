@@ -57,6 +57,18 @@ Output confidence is the sensor's for observed joints and 0.5 (``RECOVERED_CONFI
 "estimated") for joints the engine recovered (``recovered`` True); a joint the engine
 has no value for at all (never seen) is NaN with confidence 0.
 
+Long gaps (the default window solver)
+-------------------------------------
+:func:`default_window_solver` is :class:`~streamfix.streaming.bridging.BridgingWindowSolver`
+around ``clean_window``: in a window, a joint missing for ``>= ceil(W/3)`` frames (or the
+whole window) and runs of ``>= 3`` frames with fewer than 3 observed joints are filled
+first -- by PCA (Li et al.) trained on the body's own clean history (the last
+``HISTORY_S`` = 10 s of clean output, observed samples only, passed as ``history=`` to
+solvers with ``wants_history``) once 3 s of it exist, else by the learned prior's D(z*)
+(Kinect v2) -- and flagged ``recovered``. Other windows go to ``clean_window``
+unchanged. ``metrics()`` counts the bridged joint-frames by source
+(``joints_bridged_pca`` / ``_prior`` / ``_hold``).
+
 Dropped sensor frames and sequence numbers
 ------------------------------------------
 A gap between consecutive sensor timestamps larger than ``drop_gap_factor`` (1.5)
