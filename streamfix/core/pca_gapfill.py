@@ -27,8 +27,12 @@ Choices the paper leaves open, made here and documented:
 
 * **Rank rule** (:func:`choose_rank`): ``r`` is the smallest number of leading
   eigenvalues of the training Gram matrix (after removing the training mean) whose
-  sum reaches ``energy`` of the total, ``DEFAULT_ENERGY = 0.995`` (99.5 % of the
-  variance), capped by ``r_max`` and by what the template leaves observable.
+  sum reaches ``energy`` of the total: ``DEFAULT_ENERGY = 0.9999`` (99.99 % of the
+  variance) for Eq. (4)/(8), capped by ``r_max`` (60) and by what the template
+  leaves observable. For Eq. (16) the energy rule (0.999, on offset-free training
+  trajectories) gives the largest ``r``; the columns actually used (<= that) and
+  the weight scale are then picked by Eq. (13) on the training windows, because a
+  temporal basis that is too rich extrapolates wildly into a blackout.
 * **Basis alignment**: Eq. (2) assumes the individual eigenbases ``U_i^(0)``,
   ``U_B^(0)`` are expressed consistently, but an eigen-decomposition fixes each
   eigenvector only up to sign (and up to a rotation among close eigenvalues). Each
@@ -859,12 +863,14 @@ def pca_fill(
     min_observed_joints: int = 3,
     blackout_window: int = 200,
     fallback_linear: bool = True,
+    bases: dict | None = None,
     **gap_kwargs,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Everything: partial gaps by Eq. (4)/(8), whole missing frames by Eq. (16).
 
     Frames with fewer than ``min_observed_joints`` observed joints count as blackout
-    frames. Whatever neither estimator could fill (e.g. no training frame has the
+    frames. ``bases`` (a dict kept by the caller) caches Eq. (16)'s temporal bases
+    between calls with the same training set. Whatever neither estimator could fill (e.g. no training frame has the
     joint) is linearly interpolated when ``fallback_linear``. Returns
     ``(filled, filled_mask)``; with nothing missing the output equals the input.
     """
@@ -878,7 +884,7 @@ def pca_fill(
     out1, f1 = fill_gaps(out, obs, ts, energy=energy, min_observed_joints=min_observed_joints, **gap_kwargs)
     have = obs | f1
     black = obs.sum(axis=1) < min_observed_joints
-    out2, f2 = fill_blackouts(out1, have, ts, blackout=black, window=blackout_window, energy=energy)
+    out2, f2 = fill_blackouts(out1, have, ts, blackout=black, window=blackout_window, bases=bases)
     have2 = have | f2
     if fallback_linear and not have2.all():
         out2, f3 = _interp_leftover(out2, have2)
@@ -1062,4 +1068,5 @@ class PcaGapFiller:
             out, f = _interp_leftover(out, obs)
             return out, f
         return pca_fill(x, obs, self._training, energy=self.energy, min_observed_joints=self.min_observed_joints,
-                        blackout_window=min(self.blackout_window, x.shape[0]), piece_frames=self.piece_frames)
+                        blackout_window=min(self.blackout_window, x.shape[0]), piece_frames=self.piece_frames,
+                        bases=self._bases)

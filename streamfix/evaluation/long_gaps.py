@@ -253,7 +253,7 @@ def run_long_gaps(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> 
                 raw = pg.pair_distance_plausibility(pred, obs_all, fil, pairs)
                 if name == "pca" and len(pairs):             # what streamfix clean writes
                     pred = pg.project_pair_distances(pred, fil, pairs, lo, hi)
-                records.append(_record(path, motion, "long-gaps", 100.0 * (~obs_all).mean(), name, pred, None, dt,
+                records.append(_record(path, motion, "long-gaps", round(100.0 * (~obs_all).mean(), 2), name, pred, None, dt,
                                        gap_frames=None, gap_count=None, gap_mae_m=None,
                                        plausibility=pg.pair_distance_plausibility(pred, obs_all, fil, pairs),
                                        plausibility_raw=raw, rigid_pairs=int(len(pairs)), real_gaps=True))
@@ -269,7 +269,7 @@ def run_long_gaps(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> 
             gap_idx = [(np.arange(s, e), np.full(e - s, j)) for j, s, e in gaps]
             for name in names:
                 pred, dt = _run_method(name, truth, obs, ctx)
-                records.append(_record(path, motion, "long-gaps", 100.0 * miss.mean(), name, pred, truth, dt,
+                records.append(_record(path, motion, "long-gaps", round(100.0 * miss.mean(), 2), name, pred, truth, dt,
                                        gap_frames=int(length), gap_count=int(len(gaps)),
                                        gap_mae_m=eq17_mae(pred, truth, gap_idx)))
     return records
