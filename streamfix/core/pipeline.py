@@ -353,23 +353,25 @@ def project_bone_lengths_pbd(
     Q[rows, j] = 1.0
     P /= np.maximum(degree, 1.0)[None, :]  # scatter to joints and average over their bones
     Q /= np.maximum(degree, 1.0)[None, :]
-    # joint-major layout (J, T*3): each iteration is two row gathers and one matrix
-    # product scattering both ends' corrections, C = [-P^T, Q^T] (J, 2B)
+    # joint-major layout (J, 3, T): each iteration is two row gathers, norms from three
+    # contiguous (B, T) planes, and one matrix product scattering both bones' ends,
+    # C = [-P^T, Q^T] (J, 2B)
     n_bones = len(b)
     C = np.concatenate([-P.T, Q.T], axis=1)
-    si = share_i.T[..., None]                                     # (B, T, 1)
-    sj = (1.0 - share_i).T[..., None]
-    xt = np.ascontiguousarray(x.transpose(1, 0, 2)).reshape(n_joints, 3 * n_frames)
-    V = np.empty((2 * n_bones, n_frames, 3))
+    si = share_i.T[:, None, :]                                    # (B, 1, T)
+    target = lengths[:, None]
+    xt = np.ascontiguousarray(x.transpose(1, 2, 0))               # (J, 3, T)
     for _ in range(iterations):
-        u = (xt[i] - xt[j]).reshape(n_bones, n_frames, 3)        # (B, T, 3)
-        norm = np.sqrt(np.einsum("btc,btc->bt", u, u))
-        err = np.where(norm > 1e-9, (norm - lengths[:, None]) / np.maximum(norm, 1e-9), 0.0)
-        corr = u * err[..., None]                                 # the full length error along u
-        np.multiply(corr, si, out=V[:n_bones])
-        np.multiply(corr, sj, out=V[n_bones:])
-        xt += C @ V.reshape(2 * n_bones, 3 * n_frames)
-    return xt.reshape(n_joints, n_frames, 3).transpose(1, 0, 2).copy()
+        u = xt[i] - xt[j]                                         # (B, 3, T)
+        sq = u * u
+        norm = np.sqrt(sq[:, 0] + sq[:, 1] + sq[:, 2])            # (B, T)
+        err = (norm - target) / np.maximum(norm, 1e-9)
+        err[norm <= 1e-9] = 0.0
+        corr = u * err[:, None, :]                                # the full length error along u
+        corr_i = corr * si
+        V = np.concatenate([corr_i, corr - corr_i])               # i's share, then j's
+        xt += (C @ V.reshape(2 * n_bones, 3 * n_frames)).reshape(n_joints, 3, n_frames)
+    return np.ascontiguousarray(xt.transpose(2, 0, 1))
 
 
 # --------------------------------------------------------------------------- the pipeline
