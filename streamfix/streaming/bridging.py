@@ -200,22 +200,40 @@ class BridgingWindowSolver:
         C = len(ctx)
         ext = np.concatenate([ctx, x])
         ext_obs = np.concatenate([np.isfinite(ctx).all(axis=2), obs])
-        todo = long_missing_mask(ext_obs, T)[C:]
+        ext_long = long_missing_mask(ext_obs, T)
+        todo = ext_long[C:]
         if not todo.any():
             return out, done, counts
+        short = ~ext_obs & ~ext_long
+        if short.any():
+            # short gaps are the solver's: give the sources a linear guess there (marked
+            # observed) so they fit only the long gaps (PCA cost grows with the number of
+            # distinct missing-joint patterns)
+            from ..core.interpolate import interpolate_linear
+
+            guess, ok = interpolate_linear(np.where(ext_obs[..., None], ext, np.nan), ext_obs)
+            use_short = short & ok & np.isfinite(guess).all(axis=2)
+            ext = np.where(use_short[..., None], guess, ext)
+            ext_obs = ext_obs | use_short
         for src in self.sources:
             left = todo & ~done
             if not left.any():
                 break
             est = mask = None
-            if src == "pca" and h is not None and self._history_ok(h, left.any(axis=0), rate_hz):
-                from ..core.pca_gapfill import PcaGapFiller
+            try:
+                if src == "pca" and h is not None and self._history_ok(h, left.any(axis=0), rate_hz):
+                    from ..core.pca_gapfill import PcaGapFiller
 
-                est, mask = PcaGapFiller(blackout_window=T + C).fit(h).fill(ext, ext_obs)
-            elif src == "prior" and self.prior_ok(J):
-                from ..prior.init import fill_long_gaps
+                    est, mask = PcaGapFiller(blackout_window=T + C).fit(h).fill(ext, ext_obs)
+                elif src == "prior" and self.prior_ok(J):
+                    from ..prior.init import fill_long_gaps
 
-                est, mask = fill_long_gaps(ext, ext_obs, rate_hz, min_gap_frames=1)
+                    est, mask = fill_long_gaps(ext, ext_obs, rate_hz, min_gap_frames=1)
+            except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+                # a source that fails on this window (e.g. an SVD that does not converge):
+                # counted, and the next source is tried
+                counts["errors"] = counts.get("errors", 0) + 1
+                continue
             if est is None:
                 continue
             est, mask = est[C:], mask[C:]
