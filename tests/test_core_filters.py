@@ -191,3 +191,14 @@ def test_running_median_matches_nanmedian_of_each_shrunken_window():
             warnings.simplefilter("ignore", RuntimeWarning)
             ref = np.stack([np.nanmedian(x[max(0, t - half):t + half + 1], axis=0) for t in range(40)])
         assert np.array_equal(m, ref, equal_nan=True)
+
+
+def test_savgol_keeps_never_observed_joint_missing_and_smooths_the_rest():
+    from streamfix.core.filters import savgol
+
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.normal(0, 0.01, size=(40, 4, 3)), axis=0)
+    x[:, 2] = np.nan
+    y = savgol(x, 30.0)
+    assert np.isnan(y[:, 2]).all()
+    assert np.isfinite(y[:, [0, 1, 3]]).all()

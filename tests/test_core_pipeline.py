@@ -158,3 +158,23 @@ def test_local_poly_closed_form_matches_lapack_solve(cmu30, h):
     ref = _local_poly_by_lapack(y, w, h)
     assert np.abs(fit - ref).max() < 1e-9
     assert np.all(support >= 0) and np.all(support[10 + h:30 - h, :5] == 0)
+
+
+def test_joint_missing_for_the_whole_window_is_recovered_not_a_crash(shared_data):
+    """A Kinect hand untracked for a whole window (2 s) must come back finite and flagged.
+
+    Regression: Savitzky-Golay inside the median fallback raised on the all-NaN channel.
+    """
+    motion = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
+    x = motion.positions[:60].copy()
+    conf = motion.confidence[:60].copy()
+    hand = 7  # HandLeft
+    x[:, hand] = np.nan
+    conf[:, hand] = 0.0
+    res = clean_window(x, conf, motion.skeleton.bone_array, None, motion.rate_hz)
+    assert np.isfinite(res.positions).all()
+    assert res.recovered[:, hand].all()
+    others = np.ones(x.shape[1], bool)
+    others[hand] = False
+    # every other joint stays where the sensor saw it (within the pipeline's smoothing)
+    assert np.nanmax(np.abs(res.positions[:, others] - motion.positions[:60, others])) < 0.1

@@ -301,7 +301,11 @@ def savgol(
     order = min(polyorder, w - 1)
     if w <= order or w < 3:
         return x.copy()
-    return savgol_filter(x, w, order, axis=0, mode="interp")
+    seen = np.isfinite(x).all(axis=0)  # channels with any observation (after filling, all frames)
+    out = x.copy()
+    if seen.any():
+        out[:, seen] = savgol_filter(x[:, seen], w, order, axis=0, mode="interp")
+    return out
 
 
 def running_median(positions: np.ndarray, window: int, observed: np.ndarray | None = None) -> np.ndarray:
