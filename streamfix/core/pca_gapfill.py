@@ -715,41 +715,55 @@ def _residual_field(resid: np.ndarray, obs: np.ndarray, filled: np.ndarray) -> n
 
 
 def _fill_gaps_pieces(x, obs, ts, rows, *, energy, r_max, window):
-    """Eq. (5)-(8): per ``window``-frame block around missing samples, F learned from
-    ``window``-frame training pieces of all sources with the block's template."""
+    """Eq. (5)-(8) on a block of ``max(window, 3 x gap)`` frames centred on each gap run.
+
+    The template of Eq. (8) is the set of missing frames of the gap's joint in the
+    block; every column of every block-length training piece gets that template
+    (``A_i^(0)``), so ``F`` is learned for exactly that gap shape. ``V_B^(0)`` comes
+    from all of the block's trajectories complete on the present frames, with the
+    template applied.
+    Trajectories are offset by their mean over the present frames (same rule for the
+    training pieces). Joints absent from the whole block are left to the caller.
+    """
     T_len, J, _ = x.shape
     out = x.copy()
     out[~obs] = np.nan
     filled = np.zeros_like(obs)
-    m = min(window, T_len)
-    A = ts.windows(m)                                        # (K, m, n) complete pieces
-    if A.shape[0] == 0:
-        return out, filled
-    # blocks of m frames covering the rows that need filling
-    starts = np.unique(np.clip((rows // m) * m, 0, T_len - m))
-    for s in starts:
-        blk = slice(s, s + m)
-        ob = obs[blk]
-        need = (~ob) & (ob.sum(axis=1, keepdims=True) >= 1)
-        if not need.any():
-            continue
-        tmpl = np.repeat(ob, 3, axis=1)                      # (m, n) template, True = present
-        B = np.where(np.repeat(ob[:, :, None], 3, axis=2), x[blk], 0.0).reshape(m, -1)
-        # column offsets from present entries, same rule for the training pieces
-        cnt = np.maximum(tmpl.sum(axis=0), 1)
-        muB = (B * tmpl).sum(axis=0) / cnt
-        muA = (A * tmpl).sum(axis=1) / cnt                   # (K, n)
-        B0 = (B - muB) * tmpl
-        Ac = A - muA[:, None, :]
-        A0 = Ac * tmpl
-        lam = np.linalg.eigvalsh(np.einsum("kmc,kpc->mp", Ac, Ac))
-        r = choose_rank(lam, energy, r_max)
-        Bstar = eq8_estimate(B0, Ac, A0, r) + muB
-        est = Bstar.reshape(m, J, 3)
-        never = tmpl.reshape(m, J, 3).sum(axis=0)[:, 0] == 0  # joint absent in whole block
-        need &= ~never[None, :]
-        out[blk][need] = est[need]
-        filled[blk][need] = True
+    cache: dict = {}
+    need = ~obs & (np.arange(T_len)[:, None] >= 0)
+    need[np.setdiff1d(np.arange(T_len), rows)] = False
+    for j in np.flatnonzero(need.any(axis=0)):               # loop over gap runs, not frames
+        for a, b in _runs(need[:, j]):
+            m = min(max(window, 3 * (b - a)), T_len)
+            s = int(np.clip(a - (m - (b - a)) // 2, 0, T_len - m))
+            blk = slice(s, s + m)
+            ob = obs[blk]
+            present = ob[:, j]
+            if present.sum() < 4:
+                continue
+            if m not in cache:
+                cache[m] = ts.windows(m)                     # (K, m, n_tr) complete pieces
+            A = cache[m]
+            if A.shape[0] == 0:
+                continue
+            w = present.astype(np.float64)[:, None]
+            cnt = present.sum()
+            Ac = A - (A * w).sum(axis=1, keepdims=True) / cnt       # offsets from present rows
+            A0 = Ac * w                                              # the template
+            cols_ok = ob[present].all(axis=0)                        # joints complete on present rows
+            Bb = x[blk][:, cols_ok].reshape(m, -1)
+            muB = (Bb * w).sum(axis=0, where=np.isfinite(Bb)) / cnt
+            B0 = np.where(w > 0, Bb - muB, 0.0)
+            lam = np.linalg.eigvalsh(np.einsum("kmc,kpc->mp", Ac, Ac))
+            r = min(choose_rank(lam, energy, r_max), int(cnt) - 1)
+            At, A0t = np.swapaxes(Ac, 1, 2), np.swapaxes(A0, 1, 2)
+            V, VB0, Ft = _eq4_from_grams(Ac @ At, A0 @ At, A0 @ A0t, B0 @ B0.T, r)  # Eq. (5)-(7)
+            c = int(np.searchsorted(np.flatnonzero(cols_ok), j))
+            est = V @ Ft.T @ VB0.T @ B0[:, 3 * c:3 * c + 3] + muB[3 * c:3 * c + 3]  # Eq. (8)
+            rr = np.arange(s, s + m)[~present]
+            out[rr, j] = est[~present]
+            filled[rr, j] = True
+    filled &= ~obs
     return out, filled
 
 
