@@ -146,6 +146,7 @@ class BridgingWindowSolver:
         min_history_s: float = MIN_HISTORY_S,
         fill_confidence: float = FILL_CONFIDENCE,
         prior_init: str = PRIOR_INIT,
+        context_windows: float = 1.0,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -157,6 +158,7 @@ class BridgingWindowSolver:
         if prior_init not in ("off", "bridged", "always"):
             raise ValueError(f"prior_init must be 'off', 'bridged' or 'always', got {prior_init!r}")
         self.prior_init = prior_init
+        self.context_windows = float(context_windows)
         self.base = base
         self.sources = tuple(sources)
         self.use_prior = use_prior
@@ -196,7 +198,7 @@ class BridgingWindowSolver:
         # context: up to one window of the clean history just before the window, so a gap
         # that began earlier is seen with its observed start (history row -1 = frame -1)
         h = None if history is None or len(history) == 0 else np.asarray(history, dtype=np.float64)
-        ctx = np.zeros((0, J, 3)) if h is None else h[-T:]
+        ctx = np.zeros((0, J, 3)) if h is None else h[-int(self.context_windows * T):]
         C = len(ctx)
         ext = np.concatenate([ctx, x])
         ext_obs = np.concatenate([np.isfinite(ctx).all(axis=2), obs])
