@@ -20,7 +20,7 @@ def _run_json(capsys, argv):
 
 def test_noise_protocol_json_schema(shared_data, capsys):
     f = str(shared_data / "xia_bvh" / "depressed_18_000.bvh")
-    recs = _run_json(capsys, [f, "--levels", "10", "20", "--methods", "input", "streamfix", "median_savgol", "--seed", "3"])
+    recs = _run_json(capsys, [f, "--levels", "10", "20", "--methods", "input,streamfix,median_savgol", "--seed", "3"])
     assert len(recs) == 2 * 3
     for r in recs:
         assert REQUIRED <= set(r)
@@ -55,7 +55,7 @@ def test_same_seed_same_numbers(shared_data, capsys):
 
 def test_kinect_protocol_reports_jitter_and_inferred(shared_data, capsys):
     f = str(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
-    recs = _run_json(capsys, [f, "--methods", "input", "holt", "one_euro"])
+    recs = _run_json(capsys, [f, "--methods", "input,holt", "--methods", "one_euro"])
     assert {r["protocol"] for r in recs} == {"kinect"}
     by = {r["method"]: r for r in recs}
     assert by["input"]["jitter_ratio"] == pytest.approx(1.0)
@@ -68,7 +68,7 @@ def test_kinect_protocol_reports_jitter_and_inferred(shared_data, capsys):
 
 def test_table_output_and_errors(shared_data, capsys):
     f = str(shared_data / "xia_bvh" / "depressed_18_000.bvh")
-    assert main(["eval", f, "--levels", "5", "--methods", "input", "savgol"]) == 0
+    assert main(["eval", f, "--levels", "5", "--methods", "input,savgol"]) == 0
     out = capsys.readouterr().out
     assert "AJE m" in out and "savgol" in out
     assert main(["eval", f, "--methods", "nonsense"]) == 2

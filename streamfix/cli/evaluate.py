@@ -25,8 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--levels", nargs="+", type=float, default=None, metavar="PCT",
                         help="corruption levels in percent (default: the protocol's, e.g. 5 10 15 20 80 for noise)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the corruption (default 0)")
-    parser.add_argument("--methods", nargs="+", default=None, metavar="NAME",
-                        help="methods to score (default: all); comma-separated lists are accepted")
+    parser.add_argument("--methods", action="append", default=None, metavar="NAME[,NAME...]",
+                        help="methods to score (default: all): a comma-separated list; may be repeated")
     parser.add_argument("--json", action="store_true", help="print one JSON document (a list of records)")
 
 
