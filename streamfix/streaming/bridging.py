@@ -65,6 +65,8 @@ __all__ = [
 
 LONG_GAP_FRACTION = 1.0 / 3.0
 """A joint missing for this fraction of the window (or more) is bridged before the solver."""
+OPEN_GAP_FRACTION = 1.0 / 6.0
+"""... or this fraction when the run is still open at the window's end (no far end)."""
 LONG_GAP_MIN = 4
 """... but never fewer than this many frames."""
 BLACKOUT_MIN_FRAMES = 3
@@ -74,6 +76,11 @@ MIN_HISTORY_S = 3.0
 """Seconds of clean history (with the joints to fill observed) before PCA is trusted."""
 FILL_CONFIDENCE = 0.25
 """Confidence of a bridged sample as the solver sees it (below 'inferred' 0.5)."""
+EXCURSION_GAIN = 0.5
+"""Bridged samples stay within this many times the joint's own recent range of motion
+of hold/linear (:func:`streamfix.core.pca_gapfill.limit_excursion`; None = off)."""
+EXCURSION_HORIZON_S = 1.0
+"""Seconds of the joint's observed samples next to a gap that set its range of motion."""
 PRIOR_INIT = "off"
 """Prior as the solver's start on the frames entering a window: 'off', 'bridged' (only
 windows that had long gaps) or 'always' (every window with a missing sample, when the
@@ -83,6 +90,11 @@ skeleton has a prior). See :meth:`BridgingWindowSolver.prior_start`."""
 def long_gap_frames(n_frames: int) -> int:
     """Shortest missing run (frames) treated as long in a window of ``n_frames`` frames."""
     return max(LONG_GAP_MIN, int(np.ceil(n_frames * LONG_GAP_FRACTION)))
+
+
+def open_gap_frames(n_frames: int) -> int:
+    """Shortest missing run (frames) still open at the window's end that is bridged."""
+    return max(LONG_GAP_MIN, int(np.ceil(n_frames * OPEN_GAP_FRACTION)))
 
 
 def missing_run_lengths(observed: np.ndarray) -> np.ndarray:
@@ -104,7 +116,13 @@ def long_missing_mask(observed: np.ndarray, n_frames: int | None = None) -> np.n
     """``(T, J)`` bool: missing samples the solver should not be left to bridge (see module doc)."""
     obs = np.asarray(observed, dtype=bool)
     T = obs.shape[0] if n_frames is None else n_frames
-    long_ = missing_run_lengths(obs) >= long_gap_frames(T)
+    run = missing_run_lengths(obs)
+    long_ = run >= long_gap_frames(T)
+    # a run still open at the window's end has no far end for the solver to bridge to:
+    # extrapolating a limb from the low-rank fit goes 15-30 cm astray, so it is bridged
+    # once it is OPEN_GAP_FRACTION of the window long
+    seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
+    long_ |= ~seen_after & (run >= open_gap_frames(T))
     black = obs.sum(axis=1) < BLACKOUT_JOINTS
     if black.any():
         brun = missing_run_lengths(~black)
@@ -147,6 +165,7 @@ class BridgingWindowSolver:
         fill_confidence: float = FILL_CONFIDENCE,
         prior_init: str = PRIOR_INIT,
         context_windows: float = 1.0,
+        excursion_gain: float | None = EXCURSION_GAIN,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -159,6 +178,7 @@ class BridgingWindowSolver:
             raise ValueError(f"prior_init must be 'off', 'bridged' or 'always', got {prior_init!r}")
         self.prior_init = prior_init
         self.context_windows = float(context_windows)
+        self.excursion_gain = None if excursion_gain is None else float(excursion_gain)
         self.base = base
         self.sources = tuple(sources)
         self.use_prior = use_prior
@@ -244,6 +264,19 @@ class BridgingWindowSolver:
             done |= use
             if use.any():
                 counts[src] = int(use.sum())
+        if self.excursion_gain is not None and done.any():
+            # keep each model fill within the joint's recent range of motion of its
+            # continuity baseline (hold from the last observed sample; linear once the
+            # far end is in the window): see pca_gapfill.limit_excursion
+            from ..core.pca_gapfill import limit_excursion
+
+            full = ext.copy()
+            full[C:][done] = out[done]
+            fmask = np.zeros_like(ext_obs)
+            fmask[C:] = done
+            lim = limit_excursion(full, ext_obs, fmask, max(1, int(round(EXCURSION_HORIZON_S * rate_hz))),
+                                  gain=self.excursion_gain)[C:]
+            out[done] = lim[done]
         # a joint missing for the whole window with no source: hold its last clean value
         empty = ~obs.any(axis=0) & ~done.any(axis=0)
         if empty.any() and history is not None and len(history):
