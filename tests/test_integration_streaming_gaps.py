@@ -213,7 +213,7 @@ def test_fill_of_a_nearly_static_limb_is_near_hold_or_linear(shared_data, take, 
     print(f"{take} gap {a}-{b}: fill {e_fill * 100:.1f} cm (unlimited {e_free * 100:.1f}), output {e_out * 100:.1f}, "
           f"hold {hold * 100:.1f}, linear {lin * 100:.1f}")
     best = min(hold, lin)
-    assert e_fill < 1.7 * best       # measured 1.0x (seated) and 1.6x (Ges04)
+    assert e_fill < 1.5 * best       # measured 0.9x (seated) and 1.3x (Ges04)
     assert e_fill < 0.5 * e_free     # the limit is what does it
     assert e_out < 0.07              # the engine's output (clean_window moves the seated leg 5 cm by itself)
 

@@ -53,7 +53,13 @@ Choices the paper leaves open, made here and documented:
   recorded elsewhere in the room, or facing another way, still apply.
 * **Boundary correction** (not in the paper, ``boundary_correction=True``): the
   estimate's error on the observed samples next to each gap is interpolated across
-  the gap and removed, so fills join the observed trajectory without a step.
+  the gap and removed, so fills join the observed trajectory without a step. The
+  probe's estimate uses only partners also observed at the gap frame next to it (the
+  gap's own model; with a whole limb missing the probe used to take the limb's other
+  joints as partners). Optionally (``trust_kappa``, :func:`shrink_untrusted`) a
+  gap's fill is shrunk toward linear interpolation when those end residuals are large
+  against its departure from linear; streaming fills can be kept within a joint's
+  recent range of motion of hold/linear (:func:`limit_excursion`).
 * **Plausibility projection** (not in the paper, optional,
   :func:`project_pair_distances`): filled markers are moved so rigid marker pairs
   keep the distance range observed where both are visible.
@@ -1100,7 +1106,7 @@ def pair_distance_plausibility(positions: np.ndarray, observed: np.ndarray, fill
 
 
 # --------------------------------------------------------------------------- excursion limit
-EXCURSION_GAIN = 0.5
+EXCURSION_GAIN = 0.35
 """A fill may leave its continuity baseline (hold / linear) by at most this many times
 the joint's own recent range of motion (see :func:`limit_excursion`)."""
 

@@ -38,16 +38,18 @@ Continuity and excursion limit (not in the papers)
 A gap still *open* at the window's end (no far end for the solver) is bridged once it
 is ``open_gap_frames(T)`` (W/6) long: left to the low-rank fit, the first frames of a
 limb gap were extrapolated 15-30 cm astray. Every source's fill is then kept within
-``EXCURSION_GAIN`` (0.5) times the joint's own range of motion over the 1 s before the
+``EXCURSION_GAIN`` (0.35) times the joint's own range of motion over the 1 s before the
 gap (RMS distance from its last observed sample) of the continuity baseline: hold from
 the last observed sample (history included) while the far end is not in the window,
 linear once it is (:func:`streamfix.core.pca_gapfill.limit_excursion`). Why: with a
 whole limb missing, PCA on seconds of history and the prior guess its pose from
 coincidental correlations with the rest of the body (the seated ankle's partners
 include the left hand, resting on the knee; the prior swings a still arm 20-30 cm).
-Measured fill (sources only) vs sensor values: seated 3 s leg 6.8 -> 1.8 cm (hold 2.1,
-linear 1.8), Ges04 still arm 45 frames 20.5 -> 1.9 cm (linear 1.2), Ges01 waving arm
-1 s 17.3 cm (hold 28.3): a moving limb keeps most of its motion.
+Measured fill (sources only, base solver replaced by interpolation) vs the sensor's
+values, MAE cm: seated 3 s leg 5.7 -> 1.7 (hold 2.1, linear 1.8), Ges04 still arm
+45 frames 20.5 -> 1.6 (linear 1.2), Ges01 waving arm 1 s at frames 95 / 60: 16.9 /
+18.0 (hold 28.3 / 41.0): a moving limb keeps most of its motion. Gain 0.5 gave 1.8,
+1.9, 17.3 / 13.4; 1.0 gave 3.3, 3.3, 18.7 / 5.7.
 
 The filled samples enter ``clean_window`` as observations with confidence
 :data:`FILL_CONFIDENCE` (so the robust fit and the bone projection may still move them,
@@ -92,7 +94,7 @@ MIN_HISTORY_S = 3.0
 """Seconds of clean history (with the joints to fill observed) before PCA is trusted."""
 FILL_CONFIDENCE = 0.25
 """Confidence of a bridged sample as the solver sees it (below 'inferred' 0.5)."""
-EXCURSION_GAIN = 0.5
+EXCURSION_GAIN = 0.35
 """Bridged samples stay within this many times the joint's own recent range of motion
 of hold/linear (:func:`streamfix.core.pca_gapfill.limit_excursion`; None = off)."""
 EXCURSION_HORIZON_S = 1.0
