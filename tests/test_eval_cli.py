@@ -75,3 +75,14 @@ def test_table_output_and_errors(shared_data, capsys):
     assert "nonsense" in capsys.readouterr().err
     assert main(["eval", f, "--protocol", "nonsense"]) == 2
     assert main(["eval", str(shared_data / "README.md")]) == 1
+
+
+def test_default_methods_run_on_kinect_and_noise_protocols(shared_data, capsys):
+    """Without --methods every registry method runs; other protocols' method names
+    (prior_latent, pca, ...) must not leak in and abort the run (regression)."""
+    from streamfix.evaluation.registry import METHODS
+
+    kinect = _run_json(capsys, [str(shared_data / "kinect_v2" / "Ges01_wavehand.csv")])
+    assert {r["method"] for r in kinect} == set(METHODS)
+    noise = _run_json(capsys, [str(shared_data / "xia_bvh" / "depressed_18_000.bvh"), "--rate", "30", "--levels", "5"])
+    assert {r["method"] for r in noise} == set(METHODS)

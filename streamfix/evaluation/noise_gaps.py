@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core import metrics
 from ..core.corruption import add_noise, apply_gaps, gap_mask
-from .registry import ALL_METHODS, load_motion, run_method
+from .registry import METHODS, load_motion, run_method
 
 __all__ = ["run_noise", "run_gaps", "PROTOCOLS", "DEFAULT_LEVELS", "evaluate_clip"]
 
@@ -61,7 +61,7 @@ def evaluate_clip(
 
 
 def _run(protocol: str, paths, rate_hz, levels, seed, methods) -> list[dict]:
-    methods = list(methods or ALL_METHODS)
+    methods = list(methods or METHODS)  # the methods these protocols run (not other protocols')
     levels = list(levels or DEFAULT_LEVELS[protocol])
     records: list[dict] = []
     for path in paths:
