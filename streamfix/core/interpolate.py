@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-__all__ = ["interpolate_linear", "interpolate_spline", "interpolate", "observed_mask"]
+__all__ = ["interpolate_linear", "interpolate_spline", "interpolate", "observed_mask", "neighbour_observations"]
 
 
 def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
@@ -25,7 +25,7 @@ def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndar
     return observed & finite
 
 
-def _neighbours(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def neighbour_observations(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each (t, j): index of the previous and next observed frame (-1 / T if none)."""
     n = obs.shape[0]
     idx = np.arange(n)[:, None]
@@ -43,7 +43,7 @@ def interpolate_linear(
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
     obs = observed_mask(x, observed)
     n, n_joints, _ = x.shape
-    prev, nxt = _neighbours(obs)
+    prev, nxt = neighbour_observations(obs)
     has_prev, has_next = prev >= 0, nxt < n
     p = np.clip(prev, 0, n - 1)
     q = np.clip(nxt, 0, n - 1)

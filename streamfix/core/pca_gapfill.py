@@ -85,6 +85,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .interpolate import neighbour_observations
+
 __all__ = [
     "DEFAULT_ENERGY",
     "choose_rank",
@@ -735,8 +737,7 @@ def shrink_untrusted(positions: np.ndarray, observed: np.ndarray, filled: np.nda
     T_len, J = obs.shape
     idx = np.arange(T_len)[:, None]
     jj = np.arange(J)[None, :]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, T_len)[::-1], axis=0)[::-1]
+    prev, nxt = neighbour_observations(obs)
     hp, hn = prev >= 0, nxt < T_len
     pc, nc = np.clip(prev, 0, T_len - 1), np.clip(nxt, 0, T_len - 1)
     xp, xn = x[pc, jj], x[nc, jj]
@@ -786,8 +787,7 @@ def _residual_field(resid: np.ndarray, obs: np.ndarray, filled: np.ndarray) -> n
     over the gap (one end known: held constant); zero elsewhere. ``(T, J, 3)``."""
     T_len = obs.shape[0]
     idx = np.arange(T_len)[:, None]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, T_len)[::-1], axis=0)[::-1]
+    prev, nxt = neighbour_observations(obs)
     jj = np.arange(obs.shape[1])[None, :]
     ep = np.where((prev >= 0)[..., None], resid[np.clip(prev, 0, T_len - 1), jj], np.nan)
     en = np.where((nxt < T_len)[..., None], resid[np.clip(nxt, 0, T_len - 1), jj], np.nan)
@@ -939,8 +939,7 @@ def _interp_leftover(x: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.nda
     """Linear interpolation per joint coordinate (edges hold); fallback for what PCA left."""
     T_len = x.shape[0]
     idx = np.arange(T_len)[:, None]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, T_len)[::-1], axis=0)[::-1]
+    prev, nxt = neighbour_observations(obs)
     hp, hn = prev >= 0, nxt < T_len
     p, q = np.clip(prev, 0, T_len - 1), np.clip(nxt, 0, T_len - 1)
     jj = np.arange(x.shape[1])[None, :]
@@ -1142,8 +1141,7 @@ def limit_excursion(
     T_len, J = obs.shape
     idx = np.arange(T_len)[:, None]
     jj = np.arange(J)[None, :]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, T_len)[::-1], axis=0)[::-1]
+    prev, nxt = neighbour_observations(obs)
     hp, hn = prev >= 0, nxt < T_len
     pc, nc = np.clip(prev, 0, T_len - 1), np.clip(nxt, 0, T_len - 1)
     xo = np.where(obs[..., None], np.nan_to_num(x), 0.0)

@@ -63,14 +63,14 @@ where it was recovered) to solvers whose ``wants_history`` attribute is True.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
 
+from .engine import WindowOutput
+
 __all__ = [
     "BridgingWindowSolver",
-    "BridgedOutput",
     "long_gap_frames",
     "missing_run_lengths",
     "long_missing_mask",
@@ -146,19 +146,6 @@ def long_missing_mask(observed: np.ndarray, n_frames: int | None = None) -> np.n
         brun = missing_run_lengths(~black)
         long_ |= ((brun >= BLACKOUT_MIN_FRAMES)[:, None]) & ~obs
     return long_
-
-
-@dataclass
-class BridgedOutput:
-    """A window solver's result (the fields the engine reads) plus what was bridged."""
-
-    positions: np.ndarray
-    recovered: np.ndarray
-    state: Any = None
-    iterations: int = 0
-    converged: bool = True
-    info: dict = field(default_factory=dict)
-    bridged: dict = field(default_factory=dict)  # source -> joint-frames filled before the solver
 
 
 class BridgingWindowSolver:
@@ -381,7 +368,7 @@ class BridgingWindowSolver:
         res = self.base(filled, conf_in, bones, bone_lengths, rate_hz, **kwargs)
         rec = getattr(res, "recovered", None)
         rec = bridged.copy() if rec is None else (np.asarray(rec, dtype=bool) | bridged)
-        return BridgedOutput(
+        return WindowOutput(
             np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
             bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), counts,
         )

@@ -251,7 +251,8 @@ class WindowOutput:
     state: Any = None
     iterations: int = 0
     converged: bool = True
-    bridged: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+    bridged: dict = field(default_factory=dict)  # source -> joint-frames filled before the solver
 
 
 def alm_window_solver(
