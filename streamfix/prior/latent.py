@@ -84,14 +84,7 @@ def fit_latent(
     ``z0`` overrides the start E(Y) (e.g. the previous window's z* in a stream).
     ``damping``: initial Levenberg-Marquardt lambda (relative to diag(Jr^T Jr)).
     """
-    window = np.asarray(window, dtype=np.float64)
-    observed = np.asarray(observed, dtype=bool)
-    single = window.ndim == 3
-    if single:
-        window, observed = window[None], observed[None]
-    if window.shape[:3] != observed.shape or window.shape[-1] != 3:
-        raise ValueError(f"expected (B, T, J, 3) windows and (B, T, J) masks, got {window.shape} and {observed.shape}")
-    prior._check(window.shape[1:3], "fit_latent")
+    window, observed, single = prior.as_batch(window, observed, "fit_latent")
     y, obs, norms = prior.normalise(window, observed)
     b = y.shape[0]
     n_lat = prior.latent_size

@@ -162,6 +162,22 @@ class Prior:
         names = ["x", "r", "cost", "gram", "jtr", "h_zc"]
         return dict(zip(names, self._jacobian.run(names, feeds)))
 
+    def as_batch(self, window: np.ndarray, observed: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Validate a (T, J, 3) window + (T, J) mask, or batches of them, for this model.
+
+        Returns ``(windows (B, T, J, 3), masks (B, T, J), single)``; ``single`` is True
+        when one window was given (callers return ``out[0]`` then).
+        """
+        window = np.asarray(window, dtype=np.float64)
+        observed = np.asarray(observed, dtype=bool)
+        single = window.ndim == 3
+        if single:
+            window, observed = window[None], observed[None]
+        if window.shape[:3] != observed.shape or window.shape[-1] != 3:
+            raise ValueError(f"expected (B, T, J, 3) windows and (B, T, J) masks, got {window.shape} and {observed.shape}")
+        self._check(window.shape[1:3], what)
+        return window, observed, single
+
     def _check(self, tj: tuple, what: str) -> None:
         if tuple(tj) != (self.window, self.n_joints):
             raise ValueError(
@@ -187,14 +203,7 @@ class Prior:
         Every joint of the output comes from the decoder (observed ones too); see
         ``streamfix.prior.init.prior_initial_guess`` to keep observed joints.
         """
-        window = np.asarray(window, dtype=np.float64)
-        observed = np.asarray(observed, dtype=bool)
-        single = window.ndim == 3
-        if single:
-            window, observed = window[None], observed[None]
-        if window.shape[:3] != observed.shape or window.shape[-1] != 3:
-            raise ValueError(f"expected (B, T, J, 3) windows and (B, T, J) masks, got {window.shape} and {observed.shape}")
-        self._check(window.shape[1:3], "reconstruct")
+        window, observed, single = self.as_batch(window, observed, "reconstruct")
         y, obs, norms = self.normalise(window, observed)
         x = self.decode(self.encode(y, obs))
         out = np.stack([denormalise(xi, n) for xi, n in zip(x, norms)])
