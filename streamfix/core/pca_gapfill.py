@@ -85,7 +85,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .interpolate import neighbour_observations
+from .interpolate import interpolate_linear, neighbour_observations
 
 __all__ = [
     "DEFAULT_ENERGY",
@@ -936,20 +936,14 @@ def fill_blackouts(
 
 
 def _interp_leftover(x: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation per joint coordinate (edges hold); fallback for what PCA left."""
-    T_len = x.shape[0]
-    idx = np.arange(T_len)[:, None]
-    prev, nxt = neighbour_observations(obs)
-    hp, hn = prev >= 0, nxt < T_len
-    p, q = np.clip(prev, 0, T_len - 1), np.clip(nxt, 0, T_len - 1)
-    jj = np.arange(x.shape[1])[None, :]
-    xp, xq = x[p, jj], x[q, jj]
-    w = np.clip((idx - p) / np.maximum(q - p, 1), 0, 1)[..., None]
-    est = np.where((hp & hn)[..., None], xp + w * (xq - xp), np.where(hp[..., None], xp, xq))
-    ok = (hp | hn) & ~obs
+    """Linear interpolation per joint coordinate (edges hold); fallback for what PCA left.
+
+    Joints with no sample at all keep ``x``. Returns ``(positions, filled mask)``.
+    """
+    est, filled = interpolate_linear(x, obs)
     out = x.copy()
-    out[ok] = est[ok]
-    return out, ok
+    out[filled] = est[filled]
+    return out, filled
 
 
 def pca_fill(

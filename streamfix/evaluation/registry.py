@@ -108,16 +108,17 @@ METHODS: dict[str, Method] = {
 def _protocol_methods(modules: tuple[str, ...] = ("occlusion", "long_gaps")) -> tuple[str, ...]:
     """Method names that protocol modules run themselves (``METHODS`` of each module
     present: the occlusion protocol's ``prior_latent`` etc., the long-gap protocol's ``pca`` etc.)."""
-    names: list[str] = []
-    for mod in modules:
+    return tuple(str(n) for module in _present_modules(modules) for n in getattr(module, "METHODS", ()))
+
+
+def _present_modules(names: tuple[str, ...]):
+    """Yield the ``streamfix.evaluation.<name>`` modules that exist (absent ones skipped)."""
+    for name in names:
         try:
-            module = importlib.import_module(f"streamfix.evaluation.{mod}")
+            yield importlib.import_module(f"streamfix.evaluation.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"streamfix.evaluation.{mod}":
-                continue
-            raise
-        names += [str(n) for n in getattr(module, "METHODS", ())]
-    return tuple(names)
+            if exc.name != f"streamfix.evaluation.{name}":
+                raise
 
 
 
@@ -184,13 +185,7 @@ PROTOCOL_MODULES = ("noise_gaps", "kinect", "occlusion", "long_gaps")
 def discover_protocols() -> dict[str, Callable]:
     """``{protocol name: run}`` from every protocol module present (absent ones skipped)."""
     found: dict[str, Callable] = {}
-    for name in PROTOCOL_MODULES:
-        try:
-            module = importlib.import_module(f"streamfix.evaluation.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"streamfix.evaluation.{name}":
-                continue
-            raise
+    for module in _present_modules(PROTOCOL_MODULES):
         found.update(getattr(module, "PROTOCOLS", {}))
     return found
 
