@@ -67,6 +67,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..skeletons import Skeleton
 from .engine import WindowOutput
 
 __all__ = [
@@ -159,6 +160,7 @@ class BridgingWindowSolver:
     """
 
     wants_history = True
+    wants_skeleton = True
 
     def __init__(
         self,
@@ -171,6 +173,7 @@ class BridgingWindowSolver:
         prior_init: str = PRIOR_INIT,
         context_windows: float = 1.0,
         excursion_gain: float | None = EXCURSION_GAIN,
+        foot_support: bool = True,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -182,6 +185,7 @@ class BridgingWindowSolver:
         if prior_init not in ("off", "bridged", "always"):
             raise ValueError(f"prior_init must be 'off', 'bridged' or 'always', got {prior_init!r}")
         self.prior_init = prior_init
+        self.foot_support = bool(foot_support)
         self.context_windows = float(context_windows)
         self.excursion_gain = None if excursion_gain is None else float(excursion_gain)
         self.base = base
@@ -342,11 +346,34 @@ class BridgingWindowSolver:
         state: Any = None,
         init: np.ndarray | None = None,
         history: np.ndarray | None = None,
+        skeleton: Skeleton | None = None,
     ) -> Any:
         x = np.asarray(positions, dtype=np.float64)
         finite = np.isfinite(x).all(axis=2)
         conf = finite.astype(np.float64) if confidence is None else np.where(finite, confidence, 0.0)
         obs = conf > 0
+        planted = None
+        if self.foot_support and skeleton is not None:
+            # legs the sensor folded up while a foot must be on the floor (streaming/support.py)
+            from .support import plant_window
+
+            x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history)
+            if weight.any():
+                planted = weight > 0.5
+                conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
+                positions, confidence = x, conf
+        res = self._solve(x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history)
+        if planted is None:
+            return res
+        rec = getattr(res, "recovered", None)
+        rec = planted.copy() if rec is None else (np.asarray(rec, dtype=bool) | planted)
+        return WindowOutput(
+            np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
+            bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), dict(getattr(res, "bridged", None) or {}),
+        )
+
+    def _solve(self, x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history):
+        """Bridge long gaps, then the base solver (``__call__`` after the foot-support stage)."""
         kwargs: dict[str, Any] = {"state": state, "init": init}
         if config is not None:
             kwargs["config"] = config

@@ -294,12 +294,13 @@ def default_window_solver() -> WindowSolver:
     return BridgingWindowSolver()
 
 
-def _wants_history(solver: WindowSolver) -> bool:
-    """True when the solver takes ``history=`` (itself or one wrapper level, ``.solver``)."""
-    if getattr(solver, "wants_history", False):
+def _wants(solver: WindowSolver, flag: str) -> bool:
+    """True when the solver declares ``flag`` (``wants_history``: takes ``history=``;
+    ``wants_skeleton``: takes ``skeleton=``), itself or one wrapper level (``.solver``)."""
+    if getattr(solver, flag, False):
         return True
     inner = getattr(solver, "solver", None)
-    return inner is not None and inner is not solver and bool(getattr(inner, "wants_history", False))
+    return inner is not None and inner is not solver and bool(getattr(inner, flag, False))
 
 
 def _with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any:
@@ -534,7 +535,8 @@ class StreamEngine:
         self.skeleton = skeleton
         self.cfg = config if config is not None else EngineConfig()
         self.solver = window_solver if window_solver is not None else default_window_solver()
-        self._history = _wants_history(self.solver)
+        self._history = _wants(self.solver, "wants_history")
+        self._pass_skeleton = _wants(self.solver, "wants_skeleton")
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
         if self.cfg.bone_lengths is not None and len(self.cfg.bone_lengths) != skeleton.n_bones:
@@ -987,6 +989,8 @@ class StreamEngine:
         kwargs: dict[str, Any] = {"state": state}
         if self._history:
             kwargs["history"] = job.history
+        if self._pass_skeleton:
+            kwargs["skeleton"] = self.skeleton
         if config is not None:
             kwargs["config"] = config
         t0 = time.perf_counter()

@@ -1,0 +1,182 @@
+"""A supporting foot stays on the floor: undo legs that a depth sensor folds up.
+
+Why: measured against Vicon on UI-PRMD (Kinect v1), the sensor's worst failure is in
+squats, lunges and sit-to-stand. As the pelvis goes down, the sensor folds *both* legs up
+(feet rise by 30-60 cm while the real feet stay on the floor; knees end up above the
+hips). Smoothing cannot undo that, and the error is large (knees/ankles 20-40 cm off).
+A person who is not jumping always has a foot on the floor, so when *both* feet are off
+the floor for longer than a jump's flight, the feet are wrong, not the person.
+
+The model, per frame ``t`` (heights along the body's up direction ``u``, metres):
+
+* floor ``f`` = a low quantile of the lower foot's height over the context the caller
+  has (the body's history and the window: the camera does not move);
+* support loss ``g(t) = min(h_L(t), h_R(t)) - f``; correction weight
+  ``w(t) = smoothstep((g - tol_lo) / (tol_hi - tol_lo))``, set to 0 on runs shorter
+  than ``min_run`` frames (jump flights, stepping noise) unless they reach the end of
+  the context (still going on);
+* each ankle and foot is pulled, with weight ``w``, to where that foot last stood on
+  the floor (``h - f < tol_lo``; the next such frame if none came before; straight down
+  to the floor if it never did);
+* the knee is re-solved by two-bone inverse kinematics between the sensor's hip and
+  the corrected ankle with the body's thigh and shin lengths, bending towards the toes
+  (the horizontal ankle->foot direction: knees bend the way the feet point), and
+  blended in with the same weight.
+
+Arrays: positions ``(T, J, 3)`` metres, finite where used; ``legs`` ``(2, 4)`` joint
+indices (hip, knee, ankle, foot) for left and right, see :mod:`streamfix.limbs`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "SupportConfig",
+    "up_direction",
+    "estimate_floor",
+    "support_weight",
+    "two_bone_ik",
+    "plant_supporting_feet",
+]
+
+
+@dataclass(frozen=True)
+class SupportConfig:
+    """Knobs of :func:`plant_supporting_feet` (metres, seconds)."""
+
+    tol_lo_m: float = 0.04  # both feet above the floor by less than this: supported
+    tol_hi_m: float = 0.10  # ... by more than this: fully corrected
+    floor_quantile: float = 0.1
+    min_run_s: float = 0.3  # shorter losses of support are jump flights, left alone
+    axis_snap_cos: float = 0.85  # snap the up direction to a coordinate axis within ~32 deg
+
+
+def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray | None, snap_cos: float = 0.85) -> np.ndarray:
+    """Unit up vector ``(3,)``: median direction from mid-hips to mid-shoulders (or mid-knees
+    to mid-hips without shoulders), snapped to the nearest coordinate axis when within
+    ``acos(snap_cos)`` of it (sensors and mocap are y- or z-up; a lean must not tilt the floor)."""
+    hips = positions[:, legs[:, 0]].mean(axis=1)
+    top = positions[:, shoulders].mean(axis=1) if shoulders is not None else hips
+    bottom = hips if shoulders is not None else positions[:, legs[:, 1]].mean(axis=1)
+    v = top - bottom
+    n = np.linalg.norm(v, axis=1)
+    ok = np.isfinite(n) & (n > 1e-6)
+    if not ok.any():
+        return np.array([0.0, 1.0, 0.0])
+    u = np.median(v[ok] / n[ok, None], axis=0)
+    u = u / max(float(np.linalg.norm(u)), 1e-12)
+    k = int(np.argmax(np.abs(u)))
+    if abs(u[k]) >= snap_cos:
+        u = np.sign(u[k]) * np.eye(3)[k]
+    return u
+
+
+def estimate_floor(foot_heights: np.ndarray, quantile: float = 0.1) -> float:
+    """Floor height (m along up) from ``(T, 2)`` foot heights: a low quantile of the lower foot."""
+    low = np.nanmin(foot_heights, axis=1)
+    low = low[np.isfinite(low)]
+    return float(np.quantile(low, quantile)) if low.size else float("nan")
+
+
+def _drop_short_runs(active: np.ndarray, min_run: int) -> np.ndarray:
+    """``active`` ``(T,)`` bool with runs shorter than ``min_run`` cleared, except a run
+    that reaches the last frame (it may still be going on)."""
+    if min_run <= 1 or not active.any():
+        return active
+    a = np.concatenate([[False], active, [False]]).astype(np.int8)
+    d = np.diff(a)
+    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    keep = ((ends - starts) >= min_run) | (ends == len(active))
+    out = np.zeros_like(active)
+    for s, e in zip(starts[keep], ends[keep]):  # a handful of runs per window
+        out[s:e] = True
+    return out
+
+
+def support_weight(foot_heights: np.ndarray, floor: float, cfg: SupportConfig, rate_hz: float) -> np.ndarray:
+    """Correction weight ``(T,)`` in [0, 1]: how surely both feet are wrongly off the floor."""
+    g = np.nanmin(foot_heights, axis=1) - floor
+    z = np.clip((g - cfg.tol_lo_m) / (cfg.tol_hi_m - cfg.tol_lo_m), 0.0, 1.0)
+    w = np.where(np.isfinite(z), z * z * (3.0 - 2.0 * z), 0.0)
+    keep = _drop_short_runs(w > 0, int(round(cfg.min_run_s * rate_hz)))
+    return np.where(keep, w, 0.0)
+
+
+def two_bone_ik(root: np.ndarray, end: np.ndarray, l1: float, l2: float, bend: np.ndarray) -> np.ndarray:
+    """Middle joint ``(T, 3)`` of a two-bone chain root-mid-end with lengths ``l1``, ``l2`` (m).
+
+    The middle joint lies in the plane of the root->end line and ``bend`` ``(T, 3)``, on the
+    side ``bend`` points to; an end out of reach (or too near) is treated as at the reach limit.
+    """
+    d = end - root
+    L = np.linalg.norm(d, axis=1, keepdims=True)
+    dn = d / np.maximum(L, 1e-9)
+    Lc = np.clip(L, abs(l1 - l2) + 1e-6, l1 + l2 - 1e-6)
+    along = (l1 * l1 + Lc * Lc - l2 * l2) / (2.0 * Lc)  # law of cosines: distance from root along d
+    radius = np.sqrt(np.maximum(l1 * l1 - along * along, 0.0))
+    perp = bend - np.sum(bend * dn, axis=1, keepdims=True) * dn
+    perp = perp / np.maximum(np.linalg.norm(perp, axis=1, keepdims=True), 1e-9)
+    return root + along * dn + radius * perp
+
+
+def _anchor_frames(on_floor: np.ndarray) -> np.ndarray:
+    """For each frame, the last on-floor frame at or before it, else the next one, else -1."""
+    T = len(on_floor)
+    t = np.arange(T)
+    last = np.maximum.accumulate(np.where(on_floor, t, -1))
+    nxt = np.minimum.accumulate(np.where(on_floor, t, T)[::-1])[::-1]
+    return np.where(last >= 0, last, np.where(nxt < T, nxt, -1))
+
+
+def plant_supporting_feet(
+    positions: np.ndarray,
+    legs: np.ndarray,
+    up: np.ndarray,
+    rate_hz: float,
+    leg_lengths: np.ndarray | None = None,
+    cfg: SupportConfig = SupportConfig(),
+    floor: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Pull both feet back onto the floor where the sensor lifted both (module doc).
+
+    ``leg_lengths`` ``(2, 2)`` thigh and shin lengths (m) per side (None = medians of the
+    input). ``floor`` None = :func:`estimate_floor` of the input. Returns the corrected
+    positions ``(T, J, 3)``, the weight ``(T,)`` applied to the knee, ankle and foot of both
+    legs, and the floor used. Joints other than knees, ankles and feet are not changed.
+    """
+    x = np.array(positions, dtype=np.float64, copy=True)
+    heights = np.stack([x[:, legs[s, 3]] @ up for s in range(2)], axis=1)  # (T, 2)
+    if floor is None:
+        floor = estimate_floor(heights, cfg.floor_quantile)
+    if not np.isfinite(floor):
+        return x, np.zeros(len(x)), floor
+    w = support_weight(heights, floor, cfg, rate_hz)
+    if not w.any():
+        return x, w, floor
+    wc = w[:, None]
+    for s in range(2):
+        hip, knee, ankle, foot = legs[s]
+        anchor = _anchor_frames(heights[:, s] - floor < cfg.tol_lo_m)
+        have = (anchor >= 0)[:, None]
+        at = np.maximum(anchor, 0)
+        drop = (floor - heights[:, s])[:, None] * up  # no on-floor frame at all: straight down
+        A, F = x[:, ankle], x[:, foot]
+        A_new = A + wc * (np.where(have, x[at, ankle], A + drop) - A)
+        F_new = F + wc * (np.where(have, x[at, foot], F + drop) - F)
+        if leg_lengths is not None and np.all(np.isfinite(leg_lengths[s])):
+            thigh, shin = float(leg_lengths[s, 0]), float(leg_lengths[s, 1])
+        else:
+            thigh = float(np.nanmedian(np.linalg.norm(x[:, knee] - x[:, hip], axis=1)))
+            shin = float(np.nanmedian(np.linalg.norm(x[:, ankle] - x[:, knee], axis=1)))
+        toe = F_new - A_new
+        toe = toe - (toe @ up)[:, None] * up
+        weak = np.linalg.norm(toe, axis=1) < 1e-3  # no foot joint: bend the way the sensor's knee does
+        bend = np.where(weak[:, None], x[:, knee] - x[:, hip], toe)
+        K_new = two_bone_ik(x[:, hip], A_new, thigh, shin, bend)
+        sel = w > 0
+        x[sel, knee] = x[sel, knee] + wc[sel] * (K_new[sel] - x[sel, knee])
+        x[sel, ankle] = A_new[sel]
+        x[sel, foot] = F_new[sel]
+    return x, w, floor

@@ -1,0 +1,79 @@
+"""Foot support for one engine window: :func:`streamfix.core.support.plant_supporting_feet`
+seen with the body's clean history.
+
+A window is 2 s; a squat or a sit lasts longer, and the floor and where each foot last
+stood are facts about the past. So the window is extended by the body's clean history
+(the engine's ``history=``, recovered samples NaN) before the floor, the up direction and
+the anchors are found, and only the window's rows are returned. Frames where a leg joint
+is missing are left alone (their weight is 0).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from ..core.support import SupportConfig, plant_supporting_feet, up_direction
+from ..limbs import LimbLayout, limb_layout
+from ..skeletons import Skeleton
+
+__all__ = ["plant_window", "layout_of"]
+
+
+@lru_cache(maxsize=64)
+def layout_of(skeleton: Skeleton) -> LimbLayout:
+    """:func:`streamfix.limbs.limb_layout`, cached per skeleton (called every window)."""
+    return limb_layout(skeleton)
+
+
+def _leg_lengths(legs: np.ndarray, bones: np.ndarray, bone_lengths: np.ndarray | None) -> np.ndarray | None:
+    """``(2, 2)`` thigh and shin lengths from the engine's bone-length estimate, if it has them."""
+    if bone_lengths is None or len(bones) == 0:
+        return None
+    index = {(int(a), int(b)): k for k, (a, b) in enumerate(np.asarray(bones).reshape(-1, 2))}
+    out = np.full((2, 2), np.nan)
+    for s in range(2):
+        for c, (p, q) in enumerate(((legs[s, 0], legs[s, 1]), (legs[s, 1], legs[s, 2]))):
+            k = index.get((int(p), int(q)), index.get((int(q), int(p))))
+            if k is not None:
+                out[s, c] = float(bone_lengths[k])
+    return out if np.isfinite(out).all() else None
+
+
+def plant_window(
+    positions: np.ndarray,
+    observed: np.ndarray,
+    skeleton: Skeleton,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray | None,
+    rate_hz: float,
+    history: np.ndarray | None = None,
+    cfg: SupportConfig = SupportConfig(),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Window ``(T, J, 3)`` m with wrongly lifted feet planted, and the ``(T, J)`` weight of
+    the correction on each joint (0 = untouched; knees, ankles and feet only)."""
+    x = np.asarray(positions, dtype=np.float64)
+    T, J = x.shape[:2]
+    weight = np.zeros((T, J))
+    layout = layout_of(skeleton)
+    if layout.legs is None or T < 2:
+        return x, weight
+    legs = layout.legs
+    h = np.zeros((0, J, 3)) if history is None or len(history) == 0 else np.asarray(history, dtype=np.float64)
+    ext = np.concatenate([h, np.where(observed[..., None], x, np.nan)])
+    need = np.unique(np.concatenate([legs.ravel(), [] if layout.shoulders is None else layout.shoulders]))
+    complete = np.isfinite(ext[:, need]).all(axis=(1, 2))
+    if complete[len(h):].sum() < 2:
+        return x, weight
+    up = up_direction(ext[complete], legs, layout.shoulders, cfg.axis_snap_cos)
+    fixed, w, _ = plant_supporting_feet(ext[complete], legs, up, rate_hz, _leg_lengths(legs, bones, bone_lengths), cfg)
+    rows = np.flatnonzero(complete)
+    mine = rows >= len(h)
+    if not w[mine].any():
+        return x, weight
+    out = x.copy()
+    t = rows[mine] - len(h)
+    cols = legs[:, 1:].ravel()
+    out[t[:, None], cols[None, :]] = fixed[mine][:, cols]
+    weight[t[:, None], cols[None, :]] = w[mine][:, None]
+    return out, weight
