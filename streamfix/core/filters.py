@@ -26,6 +26,8 @@ output for it (NaN if it was never seen) and resume when it returns.
   including its rule that *inferred* joints use twice the two radii.
 * :func:`savgol` -- Savitzky-Golay (``scipy.signal.savgol_filter``) along time.
 * :func:`median_savgol` -- running median (outlier removal) followed by Savitzky-Golay.
+* :func:`butterworth` -- zero-phase (forward-backward) Butterworth low-pass, the default
+  of FreeMoCap and Pose2Sim (2nd order, 6 Hz cut-off).
 
 Window lengths are given in seconds and converted to odd frame counts at the rate,
 so the same defaults mean the same time span at 30 Hz and at 120 Hz.
@@ -36,7 +38,7 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import butter, savgol_filter, sosfiltfilt
 
 from .interpolate import interpolate_linear, observed_mask
 
@@ -49,6 +51,7 @@ __all__ = [
     "holt",
     "savgol",
     "median_savgol",
+    "butterworth",
     "running_median",
     "odd_window",
 ]
@@ -360,3 +363,33 @@ def median_savgol(
     obs = observed_mask(positions, observed)
     med = running_median(positions, odd_window(median_window_s, rate_hz), obs)
     return savgol(med, rate_hz, None, window_s=window_s, polyorder=polyorder)
+
+
+def butterworth(
+    positions: np.ndarray,
+    rate_hz: float,
+    observed: np.ndarray | None = None,
+    cutoff_hz: float = 6.0,
+    order: int = 2,
+) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of ``(T, J, 3)`` (m) along time, cut-off ``cutoff_hz``.
+
+    Forward-backward filtering (``sosfiltfilt``) doubles the order and has no lag, which
+    is why markerless pipelines (FreeMoCap, Pose2Sim) default to it. Missing samples are
+    filled linearly first; a never-observed joint stays NaN. Needs the whole take (not
+    causal); a cut-off at or above Nyquist returns the filled input.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    obs = observed_mask(positions, observed)
+    x = _fill_linear(positions, obs)
+    nyquist = 0.5 * float(rate_hz)
+    if not 0 < cutoff_hz < nyquist:
+        return x
+    sos = butter(order, cutoff_hz / nyquist, btype="low", output="sos")
+    seen = np.isfinite(x).all(axis=0)
+    n = x.shape[0]
+    padlen = min(3 * (2 * len(sos) + 1), n - 1)
+    out = x.copy()
+    if seen.any() and n > 1:
+        out[:, seen] = sosfiltfilt(sos, x[:, seen], axis=0, padlen=padlen)
+    return out

@@ -49,7 +49,7 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
         cv_inf_in = metrics.bone_length_cv(x, bones, any_inf) if any_inf.sum() >= 2 else None
         for name in methods:
             t0 = time.perf_counter()
-            y = run_method(name, x, conf, bones, motion.rate_hz)
+            y = run_method(name, x, conf, bones, motion.rate_hz, skeleton=motion.skeleton)
             dt = time.perf_counter() - t0
             y_obs = np.where(obs[..., None], y, np.nan)  # judge on what the sensor saw
             jit = metrics.jitter(y_obs)

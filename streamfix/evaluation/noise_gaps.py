@@ -40,13 +40,14 @@ def evaluate_clip(
     rate_hz: float,
     methods: Iterable[str],
     missing: np.ndarray | None = None,
+    skeleton=None,
 ) -> list[dict]:
     """Score each method on one corrupted clip; ``missing`` ``(T,J)`` enables gap_mae."""
     conf = observed.astype(np.float64)
     out = []
     for name in methods:
         t0 = time.perf_counter()
-        pred = run_method(name, corrupted, conf, bones, rate_hz)
+        pred = run_method(name, corrupted, conf, bones, rate_hz, skeleton=skeleton)
         dt = time.perf_counter() - t0
         rec = {
             "method": name,
@@ -83,7 +84,7 @@ def _run(protocol: str, paths, rate_hz, levels, seed, methods) -> list[dict]:
             else:
                 missing = gap_mask(n_frames, n_joints, level / 100.0, rng)
                 corrupted, observed = apply_gaps(truth, missing)
-            for rec in evaluate_clip(truth, corrupted, observed, bones, motion.rate_hz, methods, missing):
+            for rec in evaluate_clip(truth, corrupted, observed, bones, motion.rate_hz, methods, missing, motion.skeleton):
                 records.append({
                     "file": str(path),
                     "rate_hz": motion.rate_hz,

@@ -1,17 +1,27 @@
 """Methods under comparison, file loading for protocols, and protocol discovery.
 
-A *method* maps a corrupted window to a cleaned one::
+A *method* maps a corrupted take to a cleaned one::
 
-    method(positions (T,J,3) m NaN=missing, confidence (T,J), bones (B,2), rate_hz) -> (T,J,3)
+    method(positions (T,J,3) m NaN=missing, confidence (T,J), bones (B,2), rate_hz,
+           skeleton=None) -> (T,J,3)
 
-Names follow issue 2: ``input`` (the corrupted input itself), ``streamfix`` (the
-default pipeline, :func:`streamfix.core.pipeline.clean_window` on the whole clip),
-``yang``/``li``/``wang`` (Algorithm 1 and its predecessors via
-:func:`streamfix.core.alm.solve`, solver defaults), ``one_euro``, ``holt`` (Kinect SDK
-defaults; inferred joints get the SDK's doubled radii), ``savgol``, ``median_savgol``,
-``linear``, ``spline`` (gap interpolation only; observed samples pass unchanged).
-All methods get the same information: the corrupted positions and the sensor
-confidence, never the ground truth (bone lengths are estimated from the input).
+``streamfix`` is **what users get**: the streaming engine's ``clean`` output (what
+``streamfix serve`` publishes on ``clean`` and ``streamfix clean`` writes), through
+:func:`streamfix.streaming.offline.clean_motion` with the default
+:class:`~streamfix.streaming.engine.EngineConfig`. ``streamfix_whole`` is the default
+window pipeline (:func:`streamfix.core.pipeline.clean_window`) run once on the whole
+take, which no user command runs; it is kept to measure what windowing costs.
+``yang``/``li``/``wang`` are Algorithm 1 and its predecessors via
+:func:`streamfix.core.alm.solve` (solver defaults). Baselines users pick: ``one_euro``
+(Casiez et al.'s common defaults, min_cutoff 1 Hz, beta 0.5), ``one_euro_tuned``
+(min_cutoff 0.5 Hz, beta 2: less jitter at rest, still quick on fast limbs; see
+``ONE_EURO_TUNED``), ``holt`` (Kinect SDK defaults; inferred joints get the SDK's doubled
+radii), ``savgol``, ``median_savgol``, ``butterworth`` (zero-phase, 2nd order, 6 Hz: the
+FreeMoCap / Pose2Sim default), ``linear``, ``spline`` (gap interpolation only; observed
+samples pass unchanged). All methods get the same information: the corrupted positions
+and the sensor confidence, never the ground truth (bone lengths are estimated from the
+input). ``skeleton`` (the layout, for joint names such as left/right) is optional: a
+method that needs one builds a nameless layout from ``bones`` when it is not given.
 """
 from __future__ import annotations
 
@@ -22,6 +32,7 @@ from typing import Callable
 import numpy as np
 
 from ..motion import Motion
+from ..skeletons import Skeleton
 
 __all__ = [
     "METHODS",
@@ -31,23 +42,51 @@ __all__ = [
     "discover_protocols",
     "PROTOCOL_MODULES",
     "is_kinect_file",
+    "layout_for",
+    "ONE_EURO_TUNED",
 ]
 
-Method = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
+Method = Callable[..., np.ndarray]
+
+ONE_EURO_TUNED = {"min_cutoff": 0.5, "beta": 2.0, "d_cutoff": 1.0}
+"""One Euro setting for skeletons at 30 Hz: a lower rest cut-off than the paper's example
+(less jitter on still joints) and a larger speed coefficient (less lag on swings)."""
 
 
-def _input(x, conf, bones, rate):
+def _input(x, conf, bones, rate, skeleton=None):
     return x.copy()
 
 
-def _streamfix(x, conf, bones, rate):
+def layout_for(bones: np.ndarray, n_joints: int, skeleton: Skeleton | None = None) -> Skeleton:
+    """``skeleton`` when given, else a nameless layout ``eval_<J>`` with the given bones."""
+    if skeleton is not None:
+        if len(skeleton.joint_names) != n_joints:
+            raise ValueError(f"skeleton {skeleton.name!r} has {len(skeleton.joint_names)} joints, positions have {n_joints}")
+        return skeleton
+    names = tuple(f"joint{j}" for j in range(n_joints))
+    return Skeleton(f"eval_{n_joints}", names, tuple((int(a), int(b)) for a, b in np.asarray(bones).reshape(-1, 2)))
+
+
+def _streamfix(x, conf, bones, rate, skeleton=None):
+    """The engine's ``clean`` output (what ``serve`` publishes and ``clean`` writes)."""
+    from ..streaming.engine import EngineConfig
+    from ..streaming.offline import clean_motion
+
+    skel = layout_for(bones, x.shape[1], skeleton)
+    times = np.arange(x.shape[0], dtype=np.float64) / float(rate)
+    motion = Motion(np.asarray(x, dtype=np.float64), np.asarray(conf, dtype=np.float64), times, float(rate), skel)
+    out, _ = clean_motion(motion, EngineConfig(rate_hz=float(rate)))
+    return out.positions
+
+
+def _streamfix_whole(x, conf, bones, rate, skeleton=None):
     from ..core.pipeline import clean_window
 
     return clean_window(x, conf, bones, None, rate).positions
 
 
 def _solver(mode: str) -> Method:
-    def run(x, conf, bones, rate):
+    def run(x, conf, bones, rate, skeleton=None):
         from ..core.alm import SolverParams, solve
 
         return solve(x, conf > 0, bones, None, SolverParams(mode=mode)).positions
@@ -56,32 +95,44 @@ def _solver(mode: str) -> Method:
     return run
 
 
-def _one_euro(x, conf, bones, rate):
+def _one_euro(x, conf, bones, rate, skeleton=None):
     from ..core.filters import one_euro
 
     return one_euro(x, rate, conf > 0)
 
 
-def _holt(x, conf, bones, rate):
+def _one_euro_tuned(x, conf, bones, rate, skeleton=None):
+    from ..core.filters import one_euro
+
+    return one_euro(x, rate, conf > 0, **ONE_EURO_TUNED)
+
+
+def _butterworth(x, conf, bones, rate, skeleton=None):
+    from ..core.filters import butterworth
+
+    return butterworth(x, rate, conf > 0)
+
+
+def _holt(x, conf, bones, rate, skeleton=None):
     from ..core.filters import holt
 
     return holt(x, conf > 0, (conf > 0) & (conf < 1))
 
 
-def _savgol(x, conf, bones, rate):
+def _savgol(x, conf, bones, rate, skeleton=None):
     from ..core.filters import savgol
 
     return savgol(x, rate, conf > 0)
 
 
-def _median_savgol(x, conf, bones, rate):
+def _median_savgol(x, conf, bones, rate, skeleton=None):
     from ..core.filters import median_savgol
 
     return median_savgol(x, rate, conf > 0)
 
 
 def _interp(kind: str) -> Method:
-    def run(x, conf, bones, rate):
+    def run(x, conf, bones, rate, skeleton=None):
         from ..core.interpolate import interpolate
 
         return interpolate(x, conf > 0, kind)[0]
@@ -93,6 +144,7 @@ def _interp(kind: str) -> Method:
 METHODS: dict[str, Method] = {
     "input": _input,
     "streamfix": _streamfix,
+    "streamfix_whole": _streamfix_whole,
     "yang": _solver("yang"),
     "li": _solver("li"),
     "wang": _solver("wang"),
@@ -100,6 +152,8 @@ METHODS: dict[str, Method] = {
     "holt": _holt,
     "savgol": _savgol,
     "median_savgol": _median_savgol,
+    "one_euro_tuned": _one_euro_tuned,
+    "butterworth": _butterworth,
     "linear": _interp("linear"),
     "spline": _interp("spline"),
 }
@@ -122,15 +176,23 @@ def _present_modules(names: tuple[str, ...]):
 
 
 
-def run_method(name: str, positions: np.ndarray, confidence: np.ndarray, bones: np.ndarray, rate_hz: float) -> np.ndarray:
-    """Run method ``name`` (one of :data:`ALL_METHODS`) on a corrupted window."""
+def run_method(
+    name: str,
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    bones: np.ndarray,
+    rate_hz: float,
+    skeleton: Skeleton | None = None,
+) -> np.ndarray:
+    """Run method ``name`` (one of :data:`ALL_METHODS`) on a corrupted take."""
     try:
         fn = METHODS[name]
     except KeyError:
         raise ValueError(f"unknown method {name!r}; expected one of: {', '.join(ALL_METHODS)}") from None
     x = np.asarray(positions, dtype=np.float64)
     conf = np.where(np.isfinite(x).all(axis=2), np.asarray(confidence, dtype=np.float64), 0.0)
-    return np.asarray(fn(np.where(conf[..., None] > 0, x, np.nan), conf, bones, float(rate_hz)), dtype=np.float64)
+    out = fn(np.where(conf[..., None] > 0, x, np.nan), conf, bones, float(rate_hz), skeleton=skeleton)
+    return np.asarray(out, dtype=np.float64)
 
 
 def is_kinect_file(path: str | Path) -> bool:
