@@ -132,6 +132,7 @@ __all__ = [
     "alm_window_solver",
     "default_window_solver",
     "hann_weights",
+    "handover_weights",
     "Histogram",
 ]
 
@@ -341,6 +342,21 @@ def hann_weights(n: int) -> np.ndarray:
     """Overlap-add taper ``1e-3 + sin^2(pi (i + 1/2) / n)``, ``i = 0..n-1`` (never 0)."""
     i = np.arange(n, dtype=np.float64)
     return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
+
+
+def handover_weights(future: np.ndarray, lookahead: int) -> np.ndarray:
+    """Overlap-add weight of a window for frames that saw ``future`` (>= 1) of its frames
+    after them: ``1e-3 + sin^2(pi min(d, L + 1) / (L + 2))``.
+
+    A frame is blended from the windows with ``1 <= d <= L + 1``; going from frame ``n``
+    to ``n + 1`` one window leaves at ``d = 1`` and the next enters at ``d = L + 1``. Both
+    ends of the taper are near 0, so no window's arrival or departure steps the output
+    (a taper by position in the window gave the entering window about half the weight:
+    a kink in the clean output every hop). The peak is mid-lookahead, where a frame has
+    both past and future context in the window.
+    """
+    d = np.minimum(np.asarray(future, dtype=np.float64), lookahead + 1)
+    return 1e-3 + np.sin(np.pi * d / (lookahead + 2)) ** 2
 
 
 # --------------------------------------------------------------------------- metrics
@@ -1089,7 +1105,7 @@ class StreamEngine:
         if lo >= job.end:
             return
         T = job.end - job.start
-        w = hann_weights(T)[lo - job.start:]
+        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead)
         x = job.result_pos[lo - job.start:]
         r = job.result_rec[lo - job.start:].astype(np.float64)
         rows = np.arange(lo, job.end) % body.cap
