@@ -16,8 +16,8 @@ The model, per frame ``t`` (heights along the body's up direction ``u``, metres)
   than ``min_run`` frames (jump flights, stepping noise) unless they reach the end of
   the context (still going on);
 * each ankle and foot is pulled, with weight ``w``, to where that foot last stood on
-  the floor (``h - f < tol_lo``; the next such frame if none came before; straight down
-  to the floor if it never did);
+  the floor (``h - f < tol_lo / 2``, so not a frame where it was already rising; the
+  next such frame if none came before; straight down to the floor if it never did);
 * the knee is re-solved by two-bone inverse kinematics between the sensor's hip and
   the corrected ankle with the body's thigh and shin lengths, bending towards the toes
   (the horizontal ankle->foot direction: knees bend the way the feet point), and
@@ -158,7 +158,7 @@ def plant_supporting_feet(
     wc = w[:, None]
     for s in range(2):
         hip, knee, ankle, foot = legs[s]
-        anchor = _anchor_frames(heights[:, s] - floor < cfg.tol_lo_m)
+        anchor = _anchor_frames(heights[:, s] - floor < 0.5 * cfg.tol_lo_m)  # stood, not already rising
         have = (anchor >= 0)[:, None]
         at = np.maximum(anchor, 0)
         drop = (floor - heights[:, s])[:, None] * up  # no on-floor frame at all: straight down
