@@ -16,7 +16,7 @@ import numpy as np
 
 from .skeletons import Skeleton
 
-__all__ = ["LimbLayout", "limb_layout", "mirror_index"]
+__all__ = ["LimbLayout", "limb_layout", "mirror_index", "mirror_bones"]
 
 # candidate names per part, normalised (lower case, no '_', ' ', '.'); "{s}" = side word
 _PARTS: dict[str, tuple[str, ...]] = {
@@ -73,6 +73,13 @@ def mirror_index(skeleton: Skeleton) -> np.ndarray:
     """``(J,)`` index of each joint's left/right mirror image (itself where there is none)."""
     index = {n: i for i, n in enumerate(skeleton.joint_names)}
     return np.array([index.get(_swap_side(n), i) for i, n in enumerate(skeleton.joint_names)], dtype=np.intp)
+
+
+def mirror_bones(skeleton: Skeleton) -> np.ndarray:
+    """``(B,)`` index of each bone's left/right counterpart (itself for midline bones)."""
+    m = mirror_index(skeleton)
+    index = {(a, b): k for k, (a, b) in enumerate(skeleton.bones)}
+    return np.array([index.get((int(m[a]), int(m[b])), k) for k, (a, b) in enumerate(skeleton.bones)], dtype=np.intp)
 
 
 def limb_layout(skeleton: Skeleton) -> LimbLayout:

@@ -23,6 +23,7 @@ __all__ = [
     "bone_vectors",
     "bone_lengths_per_frame",
     "estimate_bone_lengths",
+    "symmetric_lengths",
     "isometry_residual",
     "isometry_jacobian",
     "incidence_matrix",
@@ -96,6 +97,32 @@ def length_mode_with_support(
     with np.errstate(invalid="ignore"):
         support = (np.abs(values - lengths[None, :]) <= tolerance_m).sum(axis=0)
     return lengths, support
+
+
+def symmetric_lengths(
+    lengths: np.ndarray, support: np.ndarray, mirror: np.ndarray, own_support: int = 30
+) -> tuple[np.ndarray, np.ndarray]:
+    """A poorly seen bone borrows its length from its left/right counterpart.
+
+    ``lengths`` ``(B,)`` m (NaN = unknown), ``support`` ``(B,)`` samples behind each,
+    ``mirror`` ``(B,)`` index of each bone's left/right counterpart (itself for midline
+    bones). A bone with at least ``own_support`` samples keeps its own length (real
+    bodies and mocap skeletons are asymmetric by a centimetre or two: pooling always cost
+    0.0006 -> 0.0024 m AJE on CMU 131_01 at 5 %); one with fewer, whose counterpart has
+    at least ``own_support`` and twice as many, takes the support-weighted mean of the pair. A sensor's limb that is mostly *inferred* has few
+    trustworthy samples, and the well-seen side fixes it (a seated Kinect user's inferred
+    shin otherwise kept a length from 8 frames, 0.53 m against the tracked side's
+    0.385 m). Returns the lengths and their support (pooled where pooled).
+    """
+    l = np.asarray(lengths, dtype=np.float64)
+    s = np.where(np.isfinite(l), np.asarray(support, dtype=np.float64), 0.0)
+    m = np.asarray(mirror, dtype=np.intp)
+    total = s + s[m]
+    pooled = np.where(total > 0, (np.nan_to_num(l) * s + np.nan_to_num(l[m]) * s[m]) / np.maximum(total, 1e-12), np.nan)
+    # borrow only from a counterpart that is itself well seen and clearly better seen:
+    # early in a stream both sides are thin, and pooling them then only adds asymmetry error
+    borrow = (m != np.arange(len(l))) & (s < own_support) & (s[m] >= own_support) & (s[m] >= 2 * s)
+    return np.where(borrow, pooled, l), np.where(borrow, total, s)
 
 
 def estimate_bone_lengths(

@@ -9,6 +9,8 @@ the floor for longer than a jump's flight, the feet are wrong, not the person.
 
 The model, per frame ``t`` (heights along the body's up direction ``u``, metres):
 
+* heights, the floor and the anchors below come from a running median of the positions
+  (``median_s``), so isolated wild samples cannot fake a lifted foot or a low floor;
 * floor ``f`` = a low quantile of the lower foot's height over the context the caller
   has (the body's history and the window: the camera does not move);
 * support loss ``g(t) = min(h_L(t), h_R(t)) - f``; correction weight
@@ -32,6 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .filters import odd_window, running_median
+
 __all__ = [
     "SupportConfig",
     "up_direction",
@@ -50,6 +54,9 @@ class SupportConfig:
     tol_hi_m: float = 0.10  # ... by more than this: fully corrected
     floor_quantile: float = 0.1
     min_run_s: float = 0.3  # shorter losses of support are jump flights, left alone
+    median_s: float = 0.3  # heights, floor and anchors from a running median this long
+    max_wild_fraction: float = 0.2  # leg samples > wild_m from that median: above this, do nothing
+    wild_m: float = 0.05
     axis_snap_cos: float = 0.85  # snap the up direction to a coordinate axis within ~32 deg
 
 
@@ -147,7 +154,14 @@ def plant_supporting_feet(
     legs, and the floor used. Joints other than knees, ankles and feet are not changed.
     """
     x = np.array(positions, dtype=np.float64, copy=True)
-    heights = np.stack([x[:, legs[s, 3]] @ up for s in range(2)], axis=1)  # (T, 2)
+    # a running median ignores isolated wild samples (spikes, a corrupted coordinate):
+    # a floor from raw heights sits on the lowest outliers and makes every foot look lifted
+    ref = running_median(x, odd_window(cfg.median_s, rate_hz))
+    heights = np.stack([ref[:, legs[s, 3]] @ up for s in range(2)], axis=1)  # (T, 2)
+    dev = np.linalg.norm(x[:, legs.ravel()] - ref[:, legs.ravel()], axis=2)
+    if np.mean(dev[np.isfinite(dev)] > cfg.wild_m) > cfg.max_wild_fraction:
+        # mostly wild samples (not a sensor's folded legs): no floor or anchor can be trusted
+        return x, np.zeros(len(x)), float("nan")
     if floor is None:
         floor = estimate_floor(heights, cfg.floor_quantile)
     if not np.isfinite(floor):
@@ -163,8 +177,8 @@ def plant_supporting_feet(
         at = np.maximum(anchor, 0)
         drop = (floor - heights[:, s])[:, None] * up  # no on-floor frame at all: straight down
         A, F = x[:, ankle], x[:, foot]
-        A_new = A + wc * (np.where(have, x[at, ankle], A + drop) - A)
-        F_new = F + wc * (np.where(have, x[at, foot], F + drop) - F)
+        A_new = A + wc * (np.where(have, ref[at, ankle], A + drop) - A)
+        F_new = F + wc * (np.where(have, ref[at, foot], F + drop) - F)
         if leg_lengths is not None and np.all(np.isfinite(leg_lengths[s])):
             thigh, shin = float(leg_lengths[s, 0]), float(leg_lengths[s, 1])
         else:
@@ -174,7 +188,7 @@ def plant_supporting_feet(
         toe = toe - (toe @ up)[:, None] * up
         weak = np.linalg.norm(toe, axis=1) < 1e-3  # no foot joint: bend the way the sensor's knee does
         bend = np.where(weak[:, None], x[:, knee] - x[:, hip], toe)
-        K_new = two_bone_ik(x[:, hip], A_new, thigh, shin, bend)
+        K_new = two_bone_ik(ref[:, hip], A_new, thigh, shin, bend)
         sel = w > 0
         x[sel, knee] = x[sel, knee] + wc[sel] * (K_new[sel] - x[sel, knee])
         x[sel, ankle] = A_new[sel]

@@ -119,7 +119,8 @@ import numpy as np
 
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
-from ..core.isometry import length_mode_with_support
+from ..core.isometry import length_mode_with_support, symmetric_lengths
+from ..limbs import mirror_bones
 from .live import LiveConfig, LivePath
 from .ring import RingBuffer
 
@@ -344,19 +345,36 @@ def hann_weights(n: int) -> np.ndarray:
     return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
 
 
-def handover_weights(future: np.ndarray, lookahead: int) -> np.ndarray:
-    """Overlap-add weight of a window for frames that saw ``future`` (>= 1) of its frames
-    after them: ``1e-3 + sin^2(pi min(d, L + 1) / (L + 2))``.
+HANDOVER_FRAMES_S = 0.1  # crossfade length at a window hand-over (3 frames at 30 Hz)
 
-    A frame is blended from the windows with ``1 <= d <= L + 1``; going from frame ``n``
-    to ``n + 1`` one window leaves at ``d = 1`` and the next enters at ``d = L + 1``. Both
-    ends of the taper are near 0, so no window's arrival or departure steps the output
-    (a taper by position in the window gave the entering window about half the weight:
-    a kink in the clean output every hop). The peak is mid-lookahead, where a frame has
-    both past and future context in the window.
+
+def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None) -> np.ndarray:
+    """Overlap-add weight of a window for frames that saw ``future`` (>= 1) of its frames
+    after them: a complementary crossfade over the ``K = L + 1 - H`` frames two
+    consecutive windows share.
+
+    A frame ``n`` is blended from the windows ending at ``e`` with ``1 <= d = e - n <= L + 1``;
+    with a regular hop, two consecutive windows overlap on ``K`` frames where the older
+    one has ``d = K - j`` and the newer ``d = L + 1 - j`` (``j = 0..K-1``). The weight
+    rises as ``s((d - 1/2) / K)`` over the first ``K`` values of ``d`` and falls as
+    ``s((L + 3/2 - d) / K)`` over the last ``K``, ``s`` the smoothstep: on the shared frames
+    the two weights sum to 1 (``s(x) + s(1 - x) = 1``), the newer window (more future,
+    fewer edge effects) takes over smoothly, and neither window's arrival nor departure
+    steps the output. (A taper by position in the window gave the entering window about
+    half the weight: a kink in the clean output every hop; one peaking mid-lookahead
+    favoured the window with less future and cost accuracy.)
     """
-    d = np.minimum(np.asarray(future, dtype=np.float64), lookahead + 1)
-    return 1e-3 + np.sin(np.pi * d / (lookahead + 2)) ** 2
+    d = np.asarray(future, dtype=np.float64)
+    K = max(int(lookahead) + 1 - int(hop), 1)
+    F = K if crossfade is None else min(max(int(crossfade), 1), K)
+
+    def smoothstep(z: np.ndarray) -> np.ndarray:
+        z = np.clip(z, 0.0, 1.0)
+        return z * z * (3.0 - 2.0 * z)
+
+    rise = smoothstep((d - 0.5 - (K - F)) / F)
+    fall = smoothstep((lookahead + 1.5 - d) / F)
+    return 1e-3 + np.minimum(rise, fall)
 
 
 # --------------------------------------------------------------------------- metrics
@@ -553,6 +571,7 @@ class StreamEngine:
         self.solver = window_solver if window_solver is not None else default_window_solver()
         self._history = _wants(self.solver, "wants_history")
         self._pass_skeleton = _wants(self.solver, "wants_skeleton")
+        self._mirror_bones = mirror_bones(skeleton)
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
         if self.cfg.bone_lengths is not None and len(self.cfg.bone_lengths) != skeleton.n_bones:
@@ -875,6 +894,7 @@ class StreamEngine:
             body.raw_bones[rows] = np.where(tracked, lengths, np.nan)
             body.raw_bones_end = win.end
         est, support = length_mode_with_support(body.raw_bones, tolerance_m=BONE_SUPPORT_TOL_M)
+        est, support = symmetric_lengths(est, support, self._mirror_bones)
         if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all():
             return est
         return None
@@ -1105,7 +1125,7 @@ class StreamEngine:
         if lo >= job.end:
             return
         T = job.end - job.start
-        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead)
+        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, self.hop)
         x = job.result_pos[lo - job.start:]
         r = job.result_rec[lo - job.start:].astype(np.float64)
         rows = np.arange(lo, job.end) % body.cap
