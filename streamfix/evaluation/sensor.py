@@ -40,7 +40,7 @@ from ..core import metrics
 from ..motion import Motion
 from ..sim.sensor_errors import KINDS, MIX_KINDS, apply_sensor_errors
 from ..skeletons import KINECT_V2
-from .registry import METHODS, load_motion, run_method
+from .registry import METHODS, is_kinect_file, load_motion, run_method
 
 __all__ = [
     "run_sensor",
@@ -67,6 +67,9 @@ def ground_truth(path: str | Path, rate_hz: float = DEFAULT_RATE_HZ) -> Motion:
     """A take as complete Kinect v2 joints in the camera frame at ``rate_hz``."""
     from ..io.retarget import bvh_to_kinect_v2
 
+    if is_kinect_file(path):
+        raise ValueError(f"{path}: the sensor protocol corrupts ground truth (optical mocap such as a BVH take); "
+                         f"a Kinect recording already carries sensor errors (use --protocol kinect)")
     motion = load_motion(path, rate_hz)
     if motion.skeleton.joint_names != KINECT_V2.joint_names:
         motion = bvh_to_kinect_v2(motion, to_camera=True)
