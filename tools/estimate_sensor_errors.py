@@ -86,9 +86,10 @@ STILL_M_S = 0.02
 
 def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(starts, lengths) of the True runs of a 1-D bool array."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    s, e = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-    return s, e - s
+    from streamfix.sim.measure import _runs as start_stop
+
+    r = np.asarray(start_stop(mask), dtype=np.intp).reshape(-1, 2)
+    return r[:, 0], r[:, 1] - r[:, 0]
 
 
 # ----------------------------------------------------------------------------- UI-PRMD
