@@ -58,6 +58,12 @@ def _job(args: tuple[str, int]) -> list[dict]:
     return run_sensor([path], seed=0, n_seeds=seeds)
 
 
+def _shown(path: Path) -> str:
+    """A take's name in the results: ``../shared/data/...`` for the shared recordings."""
+    p = Path(path).resolve()
+    return f"../shared/data/{p.relative_to(DATA)}" if p.is_relative_to(DATA) else str(path)
+
+
 def _mm(v) -> str:
     return "-" if v is None else f"{v * 1000:.1f}"
 
@@ -128,7 +134,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--records", action="store_true", help="also write every record into sensor.json (large)")
     args = p.parse_args(argv)
     files = args.files or sorted((DATA / "cmu_bvh").glob("*.bvh")) + sorted((DATA / "xia_bvh").glob("*.bvh"))
-    files = [Path(os.path.relpath(f)) if Path(f).resolve().is_relative_to(DATA) else Path(f) for f in files]
     if not files:
         print(f"bench_sensor: no BVH takes found under {DATA}", file=sys.stderr)
         return 1
@@ -143,14 +148,14 @@ def main(argv: list[str] | None = None) -> int:
     seams = {m: v["seam_ratio"] for m, v in summarise([dict(r, kind="all") for r in records])["all"].items()}
     bars = check_bars(summary, seams.get("streamfix"))
     meta = {"takes": len(files), "seeds": args.seeds, "rate_hz": DEFAULT_RATE_HZ, "wall_s": wall,
-            "files": [str(f) for f in files], "missing_methods": missing}
+            "files": [_shown(f) for f in files], "missing_methods": missing}
     print(format_table(records))
     print("\nbars:")
     for b in bars:
         fmt = (lambda v: f"{v:.3f}") if "seam" in b["bar"] else (lambda v: f"{_mm(v)} mm")
         print(f"  {'ok  ' if b['ok'] else 'MISS'} {b['kind']:<8} {b['bar']}: {fmt(b['value'])} (target {fmt(b['target'])})")
     args.out.mkdir(parents=True, exist_ok=True)
-    per_file = {f: summarise([r for r in records if r["file"] == f]) for f in meta["files"]}
+    per_file = {_shown(f): summarise([r for r in records if r["file"] == str(f)]) for f in files}
     doc = {"meta": meta, "summary": summary, "seam_ratio": seams, "bars": bars, "per_file": per_file}
     if args.records:
         doc["records"] = records
