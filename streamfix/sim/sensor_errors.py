@@ -296,21 +296,12 @@ def _spike(X, conf, rng, p, rate_hz, min_events):
     return mask
 
 
-# long limb bones: (parent, child) whose child's distal part a stretch pushes out
-_STRETCH_BONES = tuple(
-    (_K(f"{parent}{side}"), np.array([_K(f"{j}{side}") for j in seg]))
-    for side in ("Left", "Right")
-    for parent, seg in (("Shoulder", ("Elbow", "Wrist", "Hand", "HandTip", "Thumb")),
-                        ("Elbow", ("Wrist", "Hand", "HandTip", "Thumb")),
-                        ("Hip", ("Knee", "Ankle", "Foot")), ("Knee", ("Ankle", "Foot")))
-)
-
-
 def _stretch(X, conf, rng, p, rate_hz, min_events):
     T = X.shape[0]
     mask = np.zeros(conf.shape, dtype=bool)
     for _ in range(_count(rng, p.stretch_rate_hz * _N_LIMBS * T / rate_hz, min_events)):
-        parent, seg = _STRETCH_BONES[int(rng.integers(len(_STRETCH_BONES)))]
+        seg = DISTAL_SEGMENTS[int(rng.integers(len(DISTAL_SEGMENTS)))]
+        parent = PARENT[seg[0]]  # the bone parent -> seg[0] is an upper arm, forearm, thigh or shin
         s, e = _span(rng, p.stretch_frames, T)
         envelope = np.sin(np.pi * (np.arange(e - s) + 0.5) / (e - s))[:, None]  # > 0 inside
         bone = X[s:e, seg[0]] - X[s:e, parent]  # (n, 3)
