@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=None, metavar="HZ",
                         help="resample every file to HZ first (e.g. 30 for a Kinect's rate); default: native")
     parser.add_argument("--protocol", default="auto",
-                        help="noise | gaps | kinect | occlusion | long-gaps | blackout | auto (default: "
+                        help="noise | gaps | kinect | occlusion | long-gaps | blackout | sensor | auto (default: "
                              "kinect for Kinect CSV, noise otherwise)")
     parser.add_argument("--levels", nargs="+", type=float, default=None, metavar="PCT",
                         help="corruption levels in percent (default: the protocol's, e.g. 5 10 15 20 80 for noise)")
@@ -57,6 +57,11 @@ def print_table(records: list[dict], out=None) -> None:
     for (file, rate, protocol), recs in groups.items():
         print(f"\n{file} @ {rate:g} Hz, protocol {protocol}", file=out)
         methods = list(dict.fromkeys(r["method"] for r in recs))
+        if protocol == "sensor":  # per error kind, not per level
+            from ..evaluation.sensor import format_table
+
+            print(format_table(recs), file=out)
+            continue
         if protocol == "kinect":
             cols = [("jitter_ratio", "jitter after/before"), ("bone_cv_ratio", "bone CV after/before"),
                     ("inferred_shift_m", "inferred shift m"), ("inferred_bone_cv", "inferred bone CV")]

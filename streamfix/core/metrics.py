@@ -14,6 +14,8 @@ Extra measures used on data without ground truth (Kinect):
 * bone-length coefficient of variation: per bone ``std_t(l) / mean_t(l)``, averaged
   over bones (dimensionless);
 * ``gap_mae``: mean joint error over the missing joint-frames only (m).
+* ``seam_jitter``: the jitter on given frames (e.g. next to a streaming window
+  hand-over) and on all others: a seam shows as a ratio above 1.
 
 NaN samples are ignored everywhere (a metric over no samples is NaN).
 """
@@ -23,7 +25,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors"]
+__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors", "seam_jitter"]
 
 
 def _check_pair(pred: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -93,3 +95,21 @@ def gap_mae(pred: np.ndarray, truth: np.ndarray, missing: np.ndarray) -> float:
     if missing.shape != err.shape:
         raise ValueError(f"missing must be {err.shape}, got {missing.shape}")
     return _nanmean(err[missing])
+
+
+def seam_jitter(positions: np.ndarray, seam: np.ndarray) -> tuple[float, float]:
+    """(mean second difference on the ``seam`` frames, on the others), m/frame^2.
+
+    ``seam`` ``(T,)`` bool marks frames (e.g. the two around each window hand-over); the
+    second difference of frame ``t`` is ``|x_{t+1} - 2 x_t + x_{t-1}|`` averaged over
+    joints, defined for ``1 <= t <= T - 2`` (the end frames count for neither side).
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    seam = np.asarray(seam, dtype=bool)
+    if x.ndim != 3 or seam.shape != (x.shape[0],):
+        raise ValueError(f"expected (T, J, 3) positions and a (T,) seam mask, got {x.shape} and {seam.shape}")
+    if x.shape[0] < 3:
+        return float("nan"), float("nan")
+    d2 = np.linalg.norm(x[2:] - 2.0 * x[1:-1] + x[:-2], axis=-1)  # (T-2, J)
+    inner = seam[1:-1]
+    return _nanmean(d2[inner]), _nanmean(d2[~inner])

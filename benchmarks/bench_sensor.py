@@ -1,0 +1,171 @@
+"""The sensor protocol (issue 8) on every CMU and Xia take x 3 seeds; exits 1 on a missed bar.
+
+Runs :func:`streamfix.evaluation.sensor.run_sensor` (realistic sensor errors on mocap
+ground truth, Kinect v2 joints at 30 Hz; error model in ``docs/SENSOR_ERRORS.md``) on
+``../shared/data/cmu_bvh/*.bvh`` and ``../shared/data/xia_bvh/*.bvh``, one take per job
+on at most 2 worker processes, pools the records per error kind and method
+(:func:`~streamfix.evaluation.sensor.summarise`), prints the tables and writes
+``benchmarks/results/sensor.json`` (pooled and per-take summaries, bars; every record
+with ``--records``) and ``sensor.md``.
+
+Bars (issue 8, "Sensor protocol" and "No seam"), for the ``streamfix`` method:
+
+* below the best baseline's mean joint error (all joint-frames) on every error kind and
+  on ``mix`` (baselines: every method but ``input`` and ``streamfix``; a baseline that
+  leaves joint-frames missing is not eligible on that kind);
+* collateral damage (error on uncorrupted joint-frames) no larger than
+  ``median_savgol``'s on every kind that has such frames;
+* on swapped joint-frames at most 0.3x the input's error; on frozen/drifting limbs
+  (``freeze``, flagged inferred) at most 0.5x;
+* seam ratio (jitter next to window hand-overs / elsewhere, pooled over all kinds)
+  at most 1.1.
+
+Usage: ``python3 benchmarks/bench_sensor.py [--seeds 3] [--workers 2] [--files F ...]``
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+DATA = (ROOT / ".." / "shared" / "data").resolve()
+RESULTS = ROOT / "benchmarks" / "results"
+
+from streamfix.evaluation.sensor import SCORED_KINDS, run_sensor, summarise  # noqa: E402
+
+SWAP_MAX_RATIO = 0.3
+FREEZE_MAX_RATIO = 0.5
+SEAM_MAX_RATIO = 1.1
+NOT_BASELINES = ("input", "streamfix")
+GAP_ONLY = ("linear", "spline")  # pass observed samples through: a baseline only where the input has gaps
+
+
+def _job(args: tuple[str, int]) -> list[dict]:
+    path, seeds = args
+    import warnings
+
+    warnings.simplefilter("ignore", UserWarning)  # missing methods are reported once, below
+    return run_sensor([path], seed=0, n_seeds=seeds)
+
+
+def _shown(path: Path) -> str:
+    """A take's name in the results: ``../shared/data/...`` for the shared recordings."""
+    p = Path(path).resolve()
+    return f"../shared/data/{p.relative_to(DATA)}" if p.is_relative_to(DATA) else str(path)
+
+
+def _mm(v) -> str:
+    return "-" if v is None else f"{v * 1000:.1f}"
+
+
+def check_bars(summary: dict, seam_ratio: float | None) -> list[dict]:
+    """Every bar as {bar, kind, value, target, ok}."""
+    bars = []
+    for kind in SCORED_KINDS:
+        per = summary.get(kind, {})
+        sf = per.get("streamfix")
+        if sf is None:
+            continue
+        has_gaps = per.get("input", {}).get("unfilled", 0.0) > 0
+        base = {m: v["err_m"] for m, v in per.items()
+                if m not in NOT_BASELINES and v["err_m"] is not None and (has_gaps or m not in GAP_ONLY)}
+        if base and sf["err_m"] is not None:
+            best = min(base, key=base.get)
+            bars.append({"bar": f"streamfix < best baseline ({best}), all joint-frames", "kind": kind,
+                         "value": sf["err_m"], "target": base[best], "ok": sf["err_m"] < base[best]})
+        ms = per.get("median_savgol")
+        if ms and ms["err_clean_m"] is not None and sf["err_clean_m"] is not None:
+            bars.append({"bar": "collateral damage <= median_savgol's", "kind": kind, "value": sf["err_clean_m"],
+                         "target": ms["err_clean_m"], "ok": sf["err_clean_m"] <= ms["err_clean_m"]})
+        inp = per.get("input")
+        for k, ratio in (("swap", SWAP_MAX_RATIO), ("freeze", FREEZE_MAX_RATIO)):
+            if kind == k and inp and inp["err_corrupted_m"] and sf["err_corrupted_m"] is not None:
+                target = ratio * inp["err_corrupted_m"]
+                bars.append({"bar": f"corrupted joint-frames <= {ratio}x input", "kind": kind,
+                             "value": sf["err_corrupted_m"], "target": target, "ok": sf["err_corrupted_m"] <= target})
+    if seam_ratio is not None:
+        bars.append({"bar": f"seam ratio <= {SEAM_MAX_RATIO}", "kind": "all", "value": seam_ratio,
+                     "target": SEAM_MAX_RATIO, "ok": seam_ratio <= SEAM_MAX_RATIO})
+    return bars
+
+
+def markdown(summary: dict, seams: dict, bars: list[dict], meta: dict) -> str:
+    methods = list(dict.fromkeys(m for per in summary.values() for m in per))
+    out = [f"# Sensor protocol ({meta['takes']} takes x {meta['seeds']} seeds, {meta['rate_hz']:g} Hz)", "",
+           "Written by `benchmarks/bench_sensor.py`; error model in `docs/SENSOR_ERRORS.md`. "
+           "Mean joint error in mm, pooled over takes and seeds.", ""]
+    for key, title in (("err_m", "all joint-frames"), ("err_corrupted_m", "corrupted joint-frames"),
+                       ("err_clean_m", "uncorrupted joint-frames (collateral damage)")):
+        out += [f"## {title}", "", "| kind | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+        for kind in SCORED_KINDS:
+            if kind in summary:
+                out.append(f"| {kind} | " + " | ".join(_mm(summary[kind].get(m, {}).get(key)) for m in methods) + " |")
+        out.append("")
+    out += ["## seam ratio (all kinds)", "", "| " + " | ".join(methods) + " |", "|---" * len(methods) + "|",
+            "| " + " | ".join("-" if seams.get(m) is None else f"{seams[m]:.3f}" for m in methods) + " |", "",
+            "## bars", "", "| bar | kind | value | target | ok |", "|---|---|---|---|---|"]
+    for b in bars:
+        fmt = (lambda v: f"{v:.3f}") if "seam" in b["bar"] else _mm
+        out.append(f"| {b['bar']} | {b['kind']} | {fmt(b['value'])} | {fmt(b['target'])} | {'yes' if b['ok'] else 'NO'} |")
+    if meta.get("missing_methods"):
+        out += ["", f"Methods not in this registry (skipped): {', '.join(meta['missing_methods'])}."]
+    return "\n".join(out) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from streamfix.evaluation.registry import METHODS
+    from streamfix.evaluation.sensor import DEFAULT_METHODS, DEFAULT_RATE_HZ, format_table
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--seeds", type=int, default=3, help="seeds per take and kind (default 3)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2, the most allowed)")
+    p.add_argument("--files", nargs="+", type=Path, default=None, help="BVH takes (default: all CMU and Xia takes)")
+    p.add_argument("--out", type=Path, default=RESULTS, help="results folder (default benchmarks/results)")
+    p.add_argument("--records", action="store_true", help="also write every record into sensor.json (large)")
+    args = p.parse_args(argv)
+    files = args.files or sorted((DATA / "cmu_bvh").glob("*.bvh")) + sorted((DATA / "xia_bvh").glob("*.bvh"))
+    if not files:
+        print(f"bench_sensor: no BVH takes found under {DATA}", file=sys.stderr)
+        return 1
+    missing = [m for m in DEFAULT_METHODS if m not in METHODS]
+    if missing:
+        print(f"bench_sensor: methods not in this registry, skipped: {', '.join(missing)}", file=sys.stderr)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=max(1, min(args.workers, 2))) as pool:
+        records = [r for recs in pool.map(_job, [(str(f), args.seeds) for f in files]) for r in recs]
+    wall = time.perf_counter() - t0
+    summary = summarise(records)
+    seams = {m: v["seam_ratio"] for m, v in summarise([dict(r, kind="all") for r in records])["all"].items()}
+    bars = check_bars(summary, seams.get("streamfix"))
+    meta = {"takes": len(files), "seeds": args.seeds, "rate_hz": DEFAULT_RATE_HZ, "wall_s": wall,
+            "files": [_shown(f) for f in files], "missing_methods": missing}
+    print(format_table(records))
+    print("\nbars:")
+    for b in bars:
+        fmt = (lambda v: f"{v:.3f}") if "seam" in b["bar"] else (lambda v: f"{_mm(v)} mm")
+        print(f"  {'ok  ' if b['ok'] else 'MISS'} {b['kind']:<8} {b['bar']}: {fmt(b['value'])} (target {fmt(b['target'])})")
+    args.out.mkdir(parents=True, exist_ok=True)
+    per_file = {_shown(f): summarise([r for r in records if r["file"] == str(f)]) for f in files}
+    doc = {"meta": meta, "summary": summary, "seam_ratio": seams, "bars": bars, "per_file": per_file}
+    if args.records:
+        doc["records"] = records
+    (args.out / "sensor.json").write_text(json.dumps(doc, indent=1) + "\n")
+    (args.out / "sensor.md").write_text(markdown(summary, seams, bars, meta))
+    n_miss = sum(not b["ok"] for b in bars)
+    print(f"\n{len(bars) - n_miss}/{len(bars)} bars met; {len(records)} records in {wall:.0f} s; "
+          f"wrote {args.out / 'sensor.json'} and sensor.md")
+    return 1 if n_miss else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
