@@ -354,10 +354,11 @@ class BridgingWindowSolver:
         obs = conf > 0
         planted = None
         if self.foot_support and skeleton is not None:
-            # legs the sensor folded up while a foot must be on the floor (streaming/support.py)
+            # legs the sensor folded up while a foot must be on the floor (streaming/support.py);
+            # undone before the window pipeline, which then smooths the fix with everything else
             from .support import plant_window
 
-            x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history)
+            x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history, trusted=conf >= 1.0)
             if weight.any():
                 planted = weight > 0.5
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)

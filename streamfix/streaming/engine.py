@@ -134,6 +134,7 @@ __all__ = [
     "default_window_solver",
     "hann_weights",
     "handover_weights",
+    "HANDOVER_S",
     "Histogram",
 ]
 
@@ -345,7 +346,7 @@ def hann_weights(n: int) -> np.ndarray:
     return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
 
 
-HANDOVER_FRAMES_S = 0.1  # crossfade length at a window hand-over (3 frames at 30 Hz)
+HANDOVER_S = 0.13  # crossfade at a window hand-over (4 frames at 30 Hz); see handover_weights
 
 
 def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None) -> np.ndarray:
@@ -360,9 +361,13 @@ def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: in
     ``s((L + 3/2 - d) / K)`` over the last ``K``, ``s`` the smoothstep: on the shared frames
     the two weights sum to 1 (``s(x) + s(1 - x) = 1``), the newer window (more future,
     fewer edge effects) takes over smoothly, and neither window's arrival nor departure
-    steps the output. (A taper by position in the window gave the entering window about
-    half the weight: a kink in the clean output every hop; one peaking mid-lookahead
-    favoured the window with less future and cost accuracy.)
+    steps the output. ``crossfade`` ``F <= K`` shortens the fade to the first ``F`` shared
+    frames: the newer window then takes over sooner. The engine uses ``HANDOVER_S``: a
+    longer fade hides hand-overs better but leaves more frames to the older window's edge,
+    which cost accuracy under heavy corruption (CMU 131_01, 30 Hz, 20 %: the full fade
+    put the clean output at 1.25x the whole-take solve, 4 frames at 1.17x). A taper by
+    position in the window gave the entering window about half the weight: a kink in the
+    clean output every hop.
     """
     d = np.asarray(future, dtype=np.float64)
     K = max(int(lookahead) + 1 - int(hop), 1)
@@ -1125,7 +1130,8 @@ class StreamEngine:
         if lo >= job.end:
             return
         T = job.end - job.start
-        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, self.hop)
+        crossfade = max(1, int(round(HANDOVER_S * self.cfg.rate_hz)))
+        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, self.hop, crossfade)
         x = job.result_pos[lo - job.start:]
         r = job.result_rec[lo - job.start:].astype(np.float64)
         rows = np.arange(lo, job.end) % body.cap

@@ -49,9 +49,16 @@ def plant_window(
     rate_hz: float,
     history: np.ndarray | None = None,
     cfg: SupportConfig = SupportConfig(),
+    trusted: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Window ``(T, J, 3)`` m with wrongly lifted feet planted, and the ``(T, J)`` weight of
-    the correction on each joint (0 = untouched; knees, ankles and feet only)."""
+    the correction on each joint (0 = untouched; knees, ankles and feet only).
+
+    ``trusted`` ``(T, J)``: where the sensor vouches for a joint (tracked, not inferred).
+    A frame whose leg joints are not all trusted is left out: there the sensor already says
+    a leg is a guess (a frozen or drifting inferred leg), which is not the both-feet-lifted
+    failure, and planting the other, tracked leg would only damage it.
+    """
     x = np.asarray(positions, dtype=np.float64)
     T, J = x.shape[:2]
     weight = np.zeros((T, J))
@@ -60,7 +67,8 @@ def plant_window(
         return x, weight
     legs = layout.legs
     h = np.zeros((0, J, 3)) if history is None or len(history) == 0 else np.asarray(history, dtype=np.float64)
-    ext = np.concatenate([h, np.where(observed[..., None], x, np.nan)])
+    ok = observed if trusted is None else observed & trusted
+    ext = np.concatenate([h, np.where(ok[..., None], x, np.nan)])
     need = np.unique(np.concatenate([legs.ravel(), [] if layout.shoulders is None else layout.shoulders]))
     complete = np.isfinite(ext[:, need]).all(axis=(1, 2))
     if complete[len(h):].sum() < 2:
