@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -148,9 +149,15 @@ def default_paired_dir() -> Path:
 
 
 # ----------------------------------------------------------------------------- UI-PRMD
-@functools.lru_cache(maxsize=8)
 def _npz(path: str):
-    return np.load(path)  # lazy: arrays are read on access; one open file per process
+    """The open archive (lazy: arrays are read on access). One per process: a forked
+    worker must not share the parent's file offset."""
+    return _npz_in_process(path, os.getpid())
+
+
+@functools.lru_cache(maxsize=8)
+def _npz_in_process(path: str, pid: int):
+    return np.load(path)
 
 
 @functools.lru_cache(maxsize=8)
