@@ -22,15 +22,9 @@ import warnings
 
 import numpy as np
 
+from .metrics import _check_pair as _pair  # (T, J, 3) pairs, one validation for all metrics
+
 __all__ = ["remove_mean_offset", "second_difference_norm", "velocity_xcorr"]
-
-
-def _pair(pred: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    pred = np.asarray(pred, dtype=np.float64)
-    ref = np.asarray(ref, dtype=np.float64)
-    if pred.shape != ref.shape or pred.ndim != 3 or pred.shape[2] != 3:
-        raise ValueError(f"expected two (T, J, 3) arrays of equal shape, got {pred.shape} and {ref.shape}")
-    return pred, ref
 
 
 def remove_mean_offset(pred: np.ndarray, ref: np.ndarray) -> np.ndarray:

@@ -148,6 +148,16 @@ def default_paired_dir() -> Path:
     )
 
 
+def _sample_at(values: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``values`` (axis 0 = frames) at fractional frames ``u`` by linear interpolation;
+    NaN outside ``[0, len - 1]`` or next to a NaN sample."""
+    n = values.shape[0]
+    a = np.clip(np.floor(u).astype(np.intp), 0, n - 1)
+    out = resample_values(values, a, np.minimum(a + 1, n - 1), np.clip(u - a, 0.0, 1.0))
+    out[(u < 0) | (u > n - 1)] = np.nan
+    return out
+
+
 # ----------------------------------------------------------------------------- UI-PRMD
 def _npz(path: str):
     """The open archive (lazy: arrays are read on access). One per process: a forked
@@ -213,13 +223,7 @@ def load_uiprmd_take(npz_path: str | Path, key: str) -> PairedTake:
     for joint, markers in UIPRMD_REFERENCE.items():
         ref_v[:, KINECT_V1_UIPRMD.index(joint)] = vic[:, [marker[m] for m in markers]].mean(axis=1)
     # sample at the Kinect frame times: Vicon frame u = (i / fs + off) * 100
-    n = kin.shape[0]
-    u = (np.arange(n) / fs + off) * UIPRMD_VICON_HZ
-    a = np.clip(np.floor(u).astype(np.intp), 0, vic.shape[0] - 1)
-    b = np.minimum(a + 1, vic.shape[0] - 1)
-    w = np.clip(u - a, 0.0, 1.0)
-    reference = resample_values(ref_v, a, b, w)
-    reference[(u < 0) | (u > vic.shape[0] - 1)] = np.nan
+    reference = _sample_at(ref_v, (np.arange(kin.shape[0]) / fs + off) * UIPRMD_VICON_HZ)
     motion = Motion.from_positions(kin, KINECT_V1_UIPRMD, fs)
     row = _pairs_table(str(npz_path.parent)).get(key)
     parts = key.split("_")  # <set>_mMM_sSS_eEE
@@ -288,14 +292,10 @@ def load_keraal_take(kinect_path: str | Path) -> PairedTake:
     T = kin.shape[0]
     # Vicon at the Kinect frame times (both start together): frame u = i / 30 * 60
     u = np.arange(T) / KERAAL_KINECT_HZ * KERAAL_VICON_HZ
-    a = np.clip(np.floor(u).astype(np.intp), 0, vic.shape[0] - 1)
-    b = np.minimum(a + 1, vic.shape[0] - 1)
-    w = np.clip(u - a, 0.0, 1.0)
     pos_v = vic[:, :, :3] * 1e-3  # mm -> m
     pos_v[(vic[:, :, :3] == 0).all(axis=2)] = np.nan
-    pos = resample_values(pos_v, a, b, w)
-    rot = resample_values(_quat_xyzw_to_matrix(vic[:, :, 3:]), a, b, w)  # exact at Kinect frames (u integer)
-    pos[u > vic.shape[0] - 1] = np.nan
+    pos = _sample_at(pos_v, u)
+    rot = _sample_at(_quat_xyzw_to_matrix(vic[:, :, 3:]), u)  # exact at Kinect frames (u integer)
     ji = [KINECT_V2.index(j) for j, _ in KERAAL_PAIRS]
     gi = [KERAAL_TARGETS.index(g) for _, g in KERAAL_PAIRS]
     sensor_xyz = kin[:, :, :3].copy()
