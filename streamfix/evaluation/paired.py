@@ -40,6 +40,7 @@ skipped with a warning (:data:`DEFAULT_METHODS` names the baselines users pick).
 """
 from __future__ import annotations
 
+import functools
 import inspect
 import sys
 import time
@@ -79,9 +80,15 @@ def handover_frames(n_frames: int, rate_hz: float) -> np.ndarray:
 
 
 def _run_method(name: str, take: PairedTake) -> np.ndarray:
+    """``registry.run_method`` on the take's sensor skeleton (passing ``skeleton=`` where accepted)."""
     m = take.sensor
-    kwargs = {"skeleton": m.skeleton} if "skeleton" in inspect.signature(registry.run_method).parameters else {}
+    kwargs = {"skeleton": m.skeleton} if _takes_skeleton() else {}
     return registry.run_method(name, m.positions, m.confidence, m.skeleton.bone_array, m.rate_hz, **kwargs)
+
+
+@functools.lru_cache(maxsize=1)
+def _takes_skeleton() -> bool:
+    return "skeleton" in inspect.signature(registry.run_method).parameters
 
 
 def _region_joints(take: PairedTake) -> dict[str, np.ndarray]:
@@ -223,6 +230,8 @@ def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, sub
     """
     if rate_hz is not None:
         raise ValueError(f"the paired protocol runs each take at its sensor's own rate; got --rate {rate_hz:g}")
+    if levels is not None:
+        raise ValueError(f"the paired protocol scores real sensor errors, it has no corruption levels; got {levels}")
     methods = known_methods(methods)
     sources = [Path(p) for p in paths] or [default_paired_dir()]
     records: list[dict] = []
