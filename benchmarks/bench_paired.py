@@ -17,7 +17,7 @@ Bars (issue 8, the ``streamfix`` method; "debiased" = each joint's mean offset r
 
 Baselines are the methods run other than ``input`` and ``streamfix``; a method the
 registry does not know is skipped with a warning. Takes run in ``--workers`` processes
-(default 2).
+(default and at most 2).
 
 Usage: ``python benchmarks/bench_paired.py [--limit N] [--workers N] [--methods a,b,...] [--out DIR]``
 (``--limit`` is for quick runs: it writes nothing unless ``--out`` is given).
@@ -50,6 +50,7 @@ UIPRMD_P95_X_INPUT = 0.85
 UIPRMD_JITTER_X_REFERENCE = 2.5
 KERAAL_X_INPUT = 0.9
 SEAM_MAX = 1.1
+MAX_WORKERS = 2
 
 
 def _get(records: list[dict], dataset: str, method: str, region: str) -> dict | None:
@@ -140,8 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None,
                     help="results directory (default benchmarks/results; a --limit run writes only with --out)")
     args = ap.parse_args(argv)
-    if args.workers < 1:
-        ap.error(f"--workers must be >= 1, got {args.workers}")
+    if not 1 <= args.workers <= MAX_WORKERS:
+        ap.error(f"--workers must be 1..{MAX_WORKERS} (the benchmark machine is shared), got {args.workers}")
     out_dir = args.out if args.out is not None else (None if args.limit else ROOT / "benchmarks" / "results")
     methods = [m for m in args.methods.split(",") if m]
 
