@@ -277,8 +277,8 @@ def print_paired_table(records: list[dict], out=None) -> None:
     cols = ("mean mm", "debiased mm", "x input", "p95 mm", "x input", "jitter/ref", "bone CV", "lag fr", "seam")
     for (file, dataset, region), recs in groups.items():
         base = next((r for r in recs if r["method"] == "input"), None)
-        print(f"\n{dataset} ({recs[0]['n_takes']} takes, {recs[0]['n_frames']} frames), region {region}: {file}",
-              file=out)
+        print(f"\n{dataset} ({recs[0]['n_takes']} takes, {recs[0]['n_frames']} frames, {recs[0].get('subset', '')}), "
+              f"region {region}: {file}", file=out)
         print(f"{'method':<16}" + "".join(f"{c:>12}" for c in cols), file=out)
         for r in recs:
             rel = [None, None]

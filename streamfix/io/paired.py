@@ -18,7 +18,8 @@ UI-PRMD (Kinect v1 + Vicon 100 Hz, ``uiprmd/uiprmd_*.npz`` + ``pairs.csv``)
     any of them is lost (stored as 0, 0, 0), sampled at the Kinect frame times by
     linear interpolation between the two neighbouring Vicon frames. The *trustworthy*
     subset is ``pos_corr > 0.95`` and ``25 <= fs_eff <= 33`` in ``pairs.csv``
-    (a repetition missing from it is not trustworthy).
+    (a repetition missing from it is not trustworthy; one without an alignment in the
+    archive is not listed at all).
 KERAAL (Kinect v2 ~30 Hz + Vicon rigid targets ~60 Hz, two text files per take)
     Both start together; Kinect frame ``i`` is at ``i / 30`` s, Vicon frame ``j`` at
     ``j / 60`` s (the nominal rates fit best: other rates and start offsets were
@@ -191,7 +192,9 @@ def _uiprmd_trustworthy(row: dict[str, str] | None) -> bool:
 
 
 def _uiprmd_keys(npz_path: Path) -> list[str]:
-    return sorted(k[len("kinect_"):] for k in _npz(str(npz_path)).files if k.startswith("kinect_"))
+    """Repetitions with a Kinect stream and an alignment (one in the release has none)."""
+    files = set(_npz(str(npz_path)).files)
+    return sorted(k[len("kinect_"):] for k in files if k.startswith("kinect_") and f"fs_{k[len('kinect_'):]}" in files)
 
 
 def load_uiprmd_take(npz_path: str | Path, key: str) -> PairedTake:
