@@ -26,7 +26,7 @@ def test_cli_json_on_a_few_repetitions(capsys):
     for r in recs:
         assert r["protocol"] == "paired" and r["subset"] == "trustworthy"
         assert all(isinstance(r[k], float) and math.isfinite(r[k]) for k in KEYS), r
-        assert r["debiased_mean_m"] <= r["debiased_p95_m"]
+        assert r["debiased_mean_m"] <= r["debiased_p95_m"] and r["coverage"] == 1.0
     assert by[("uiprmd", "input", "all")]["n_takes"] == 2 and by[("keraal", "input", "all")]["n_takes"] == 1
     for d in ("uiprmd", "keraal"):
         raw = by[(d, "input", "all")]

@@ -10,6 +10,8 @@ scores the output against the reference, per dataset and per body region (``all`
     {file, rate_hz, protocol: "paired", level: 0, method, dataset, region, subset,
      n_takes, n_frames, n_joints,
      aje_m = mean_error_m,        # mean |output - reference| (m), joints with a reference
+     coverage,                    # fraction of reference joint-frames the output has a value for
+                                  #   (errors are over these: a method leaving NaN scores fewer)
      debiased_mean_m,             # the same after removing each joint's mean offset over the
      debiased_p95_m,              #   take (per method): marker-vs-joint-centre bias is not the
                                   #   cleaner's to fix; p95 over all joint-frames
@@ -130,7 +132,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
             s_ok = np.isfinite(d2) & jm
             out[(name, region)] = {
                 "frames": T,
-                "err_sum": float(err[e_ok].sum()), "err_n": int(e_ok.sum()),
+                "err_sum": float(err[e_ok].sum()), "err_n": int(e_ok.sum()), "ref_n": int((has_ref & jm).sum()),
                 "deb": deb[e_ok & np.isfinite(deb)].astype(np.float32),
                 "jit_sum": float(d2[j_ok].sum()), "jit_ref_sum": float(d2_ref[j_ok].sum()), "jit_n": int(j_ok.sum()),
                 "cv": cv,
@@ -157,7 +159,7 @@ def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
             pooled.setdefault((dataset, method, region), []).append(p)
     records = []
     for (dataset, method, region), ps in pooled.items():
-        s = {k: sum(p[k] for p in ps) for k in ("frames", "err_sum", "err_n", "jit_sum", "jit_ref_sum", "jit_n",
+        s = {k: sum(p[k] for p in ps) for k in ("frames", "err_sum", "err_n", "ref_n", "jit_sum", "jit_ref_sum", "jit_n",
                                                  "seam_sum", "seam_n", "other_sum", "other_n", "time_s")}
         deb = np.concatenate([p["deb"] for p in ps]).astype(np.float64)
         cvs = np.array([p["cv"] for p in ps], dtype=np.float64)
@@ -184,6 +186,7 @@ def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
             "abe_m": None,
             "gap_mae_m": None,
             "mean_error_m": mean_err,
+            "coverage": s["err_n"] / s["ref_n"] if s["ref_n"] else None,
             "debiased_mean_m": float(deb.mean()) if deb.size else None,
             "debiased_p95_m": float(np.percentile(deb, 95)) if deb.size else None,
             "jitter": jit,
