@@ -137,7 +137,8 @@ def test_bad_inputs_name_the_problem(paired, tmp_path):
     lines = src.read_text().splitlines()
     bad = tmp_path / "X-Kinect-CTK-P1T1.txt"
     bad.write_text("\n".join(lines[:5] + [" ".join(lines[5].split()[:-1])] + lines[6:]) + "\n")
-    (tmp_path / "X-Vicon-CTK-P1T1.txt").write_text((paired / "keraal" / src.name.replace("Kinect", "Vicon")).read_text())
+    vicon = paired / "keraal" / src.name.replace("Kinect", "Vicon")
+    (tmp_path / "X-Vicon-CTK-P1T1.txt").write_text(vicon.read_text())
     with pytest.raises(MotionFileError, match=r"line 6: expected 175 numbers .* got 174"):
         load_keraal_take(bad)
     lonely = tmp_path / "Y-Kinect-CTK.txt"

@@ -150,6 +150,10 @@ def _ratio(a: float, b: float) -> float | None:
     return a / b if b > 0 else None
 
 
+_SUMMED = ("frames", "err_sum", "err_n", "ref_n", "jit_sum", "jit_ref_sum", "jit_n",
+           "seam_sum", "seam_n", "other_sum", "other_n", "time_s")  # partial sums pooled over takes
+
+
 def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
     """Pool :func:`score_take` results ``[(dataset, partial), ...]`` into one record per
     (dataset, method, region), in first-seen order."""
@@ -159,8 +163,7 @@ def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
             pooled.setdefault((dataset, method, region), []).append(p)
     records = []
     for (dataset, method, region), ps in pooled.items():
-        s = {k: sum(p[k] for p in ps) for k in ("frames", "err_sum", "err_n", "ref_n", "jit_sum", "jit_ref_sum", "jit_n",
-                                                 "seam_sum", "seam_n", "other_sum", "other_n", "time_s")}
+        s = {k: sum(p[k] for p in ps) for k in _SUMMED}
         deb = np.concatenate([p["deb"] for p in ps]).astype(np.float64)
         cvs = np.array([p["cv"] for p in ps], dtype=np.float64)
         w = np.array([p["frames"] for p in ps], dtype=np.float64)
