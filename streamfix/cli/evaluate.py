@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
         plan[name].append(f)
-    records: list[dict] = []
+    by_protocol: dict[str, list[dict]] = {}
     try:
         for name, files in plan.items():
             fn = protocols[name]
@@ -141,14 +141,15 @@ def run(args: argparse.Namespace) -> int:
                         print(f"streamfix eval: --{option} does not apply to protocol {name!r}", file=sys.stderr)
                         return 2
                     kwargs[option] = getattr(args, option)
-            records += fn(files, **kwargs)
+            by_protocol[name] = fn(files, **kwargs)
     except (OSError, ValueError) as exc:
         print(f"streamfix eval: {exc}", file=sys.stderr)
         return 1
+    records = [r for recs in by_protocol.values() for r in recs]
     if args.json:
         json.dump(_clean(records), sys.stdout, indent=1)
         sys.stdout.write("\n")
     else:
-        for name in plan:  # a protocol may bring its own table (run.print_table)
-            getattr(protocols[name], "print_table", print_table)([r for r in records if r["protocol"] == name])
+        for name in by_protocol:  # a protocol may bring its own table (run.print_table)
+            getattr(protocols[name], "print_table", print_table)(by_protocol[name])
     return 0
