@@ -19,6 +19,7 @@ __all__ = [
     "KINECT_V2",
     "AZURE_KINECT",
     "MEDIAPIPE_POSE",
+    "KINECT_V1_UIPRMD",
 ]
 
 
@@ -189,7 +190,23 @@ _MEDIAPIPE_EDGES = (
 )
 MEDIAPIPE_POSE = Skeleton("mediapipe_pose", _MEDIAPIPE_NAMES, _MEDIAPIPE_EDGES)
 
-_REGISTRY: dict[str, Skeleton] = {s.name: s for s in (KINECT_V2, AZURE_KINECT, MEDIAPIPE_POSE)}
+# Kinect v1 as released in UI-PRMD (Vakanski et al., Data 2018): 22 joints, 21 bones, rebuilt
+# from the release's local offsets; HeadTip is where the sensor's head joint is.
+KINECT_V1_UIPRMD = _from_parents(
+    "kinect_v1_uiprmd",
+    [
+        ("Waist", None), ("Spine", "Waist"), ("Chest", "Spine"), ("Neck", "Chest"),
+        ("Head", "Neck"), ("HeadTip", "Head"),
+        ("LCollar", "Chest"), ("LShoulder", "LCollar"), ("LElbow", "LShoulder"), ("LWrist", "LElbow"),
+        ("RCollar", "Chest"), ("RShoulder", "RCollar"), ("RElbow", "RShoulder"), ("RWrist", "RElbow"),
+        ("LHip", "Waist"), ("LKnee", "LHip"), ("LAnkle", "LKnee"), ("LFoot", "LAnkle"),
+        ("RHip", "Waist"), ("RKnee", "RHip"), ("RAnkle", "RKnee"), ("RFoot", "RAnkle"),
+    ],
+)
+
+_REGISTRY: dict[str, Skeleton] = {
+    s.name: s for s in (KINECT_V2, AZURE_KINECT, MEDIAPIPE_POSE, KINECT_V1_UIPRMD)
+}
 
 
 def register_skeleton(skeleton: Skeleton, *, replace: bool = False) -> Skeleton:

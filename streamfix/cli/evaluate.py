@@ -16,7 +16,9 @@ HELP = "reproduce the paper's protocols (noise, gaps, ...) on files and score ev
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("files", nargs="+", metavar="FILE", help="motion files (BVH, C3D, Kinect v2 CSV)")
+    parser.add_argument("files", nargs="*", metavar="FILE",
+                        help="motion files (BVH, C3D, Kinect v2 CSV); for --protocol paired the paired "
+                             "recordings' directory (default ../shared/data/paired)")
     parser.add_argument("--rate", type=float, default=None, metavar="HZ",
                         help="resample every file to HZ first (e.g. 30 for a Kinect's rate); default: native")
     parser.add_argument("--protocol", default="auto",
@@ -28,6 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--methods", action="append", default=None, metavar="NAME[,NAME...]",
                         help="methods to score (default: all): a comma-separated list; may be repeated")
     parser.add_argument("--json", action="store_true", help="print one JSON document (a list of records)")
+    parser.add_argument("--subset", choices=("trustworthy", "all"), default=None,
+                        help="paired protocol: UI-PRMD repetitions to score (default trustworthy, see its README)")
+    parser.add_argument("--limit", type=int, default=None, metavar="N",
+                        help="paired protocol: at most N repetitions per dataset, spread over the list (quick runs)")
 
 
 def _clean(value):
@@ -84,15 +90,15 @@ def print_table(records: list[dict], out=None) -> None:
                 print(f"  {m:<12}" + "".join(f"{c:>10}" for c in row), file=out)
 
 
-def _accepts_methods(fn) -> bool:
-    """Protocol runners may predate the ``methods`` keyword (ARCHITECTURE.md contract)."""
+def _accepts(fn, keyword: str) -> bool:
+    """Protocol runners may predate a keyword (``methods``: ARCHITECTURE.md contract)."""
     import inspect
 
     try:
         params = inspect.signature(fn).parameters
     except (TypeError, ValueError):
         return True
-    return "methods" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+    return keyword in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,6 +114,12 @@ def run(args: argparse.Namespace) -> int:
                   f"{', '.join(ALL_METHODS)}", file=sys.stderr)
             return 2
     plan: dict[str, list[str]] = defaultdict(list)
+    if not args.files:
+        if args.protocol not in protocols or not _accepts(protocols[args.protocol], "subset"):
+            print(f"streamfix eval: protocol {args.protocol!r} needs FILE arguments (only paired "
+                  f"recordings have a default directory)", file=sys.stderr)
+            return 2
+        plan[args.protocol] = []
     for f in args.files:
         name = args.protocol
         if name == "auto":
@@ -117,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
         plan[name].append(f)
-    records: list[dict] = []
+    by_protocol: dict[str, list[dict]] = {}
     try:
         for name, files in plan.items():
             fn = protocols[name]
@@ -126,15 +138,23 @@ def run(args: argparse.Namespace) -> int:
                 kwargs["rate_hz"] = args.rate
             if args.levels is not None:
                 kwargs["levels"] = args.levels
-            if _accepts_methods(fn):
+            if _accepts(fn, "methods"):
                 kwargs["methods"] = methods
-            records += fn(files, **kwargs)
+            for option in ("subset", "limit"):  # protocol-specific options, given only when set
+                if getattr(args, option) is not None:
+                    if not _accepts(fn, option):
+                        print(f"streamfix eval: --{option} does not apply to protocol {name!r}", file=sys.stderr)
+                        return 2
+                    kwargs[option] = getattr(args, option)
+            by_protocol[name] = fn(files, **kwargs)
     except (OSError, ValueError) as exc:
         print(f"streamfix eval: {exc}", file=sys.stderr)
         return 1
+    records = [r for recs in by_protocol.values() for r in recs]
     if args.json:
         json.dump(_clean(records), sys.stdout, indent=1)
         sys.stdout.write("\n")
     else:
-        print_table(records)
+        for name in by_protocol:  # a protocol may bring its own table (run.print_table)
+            getattr(protocols[name], "print_table", print_table)(by_protocol[name])
     return 0

@@ -241,7 +241,7 @@ def load_motion(path: str | Path, rate_hz: float | None = None) -> Motion:
 
 
 # Modules under streamfix.evaluation that may define PROTOCOLS = {name: run}.
-PROTOCOL_MODULES = ("noise_gaps", "kinect", "occlusion", "long_gaps", "sensor")
+PROTOCOL_MODULES = ("noise_gaps", "kinect", "occlusion", "long_gaps", "sensor", "paired")
 
 
 def discover_protocols() -> dict[str, Callable]:

@@ -1,0 +1,184 @@
+"""Paired recordings (issue 8): every method against optical motion capture; exits 1 on a missed bar.
+
+Runs :mod:`streamfix.evaluation.paired` on the whole trustworthy UI-PRMD subset (Kinect v1
++ Vicon) and the KERAAL take(s) (Kinect v2 + Vicon) in ``../shared/data/paired``, prints
+one table per dataset and body region, and writes ``benchmarks/results/paired.json``
+(records, bars, run details) and ``benchmarks/results/paired.md`` (the tables and bars).
+
+Bars (issue 8, the ``streamfix`` method; "debiased" = each joint's mean offset removed):
+
+* UI-PRMD, upper body and lower body each: debiased mean error <= 0.9x the input's and
+  lower than every baseline's;
+* UI-PRMD, all joints: debiased p95 <= 0.85x the input's; output jitter <= 2.5x the
+  reference's;
+* KERAAL, all joints: debiased mean and p95 <= 0.9x the input's;
+* both datasets, all joints: seam ratio (second difference on the frames next to a
+  window hand-over / other frames) <= 1.1.
+
+Baselines are the methods run other than ``input`` and ``streamfix*`` (a whole-take solve,
+``streamfix_whole``, is not a baseline); a method the
+registry does not know is skipped with a warning. Takes run in ``--workers`` processes
+(default and at most 2).
+
+Usage: ``python benchmarks/bench_paired.py [--limit N] [--workers N] [--methods a,b,...] [--out DIR]``
+(``--limit`` is for quick runs: it writes nothing unless ``--out`` is given).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+PAIRED = (ROOT / ".." / "shared" / "data" / "paired").resolve()
+
+from streamfix.cli.evaluate import _clean  # noqa: E402
+from streamfix.evaluation.paired import DEFAULT_METHODS, print_paired_table, run_paired  # noqa: E402
+
+UIPRMD_MEAN_X_INPUT = 0.9
+UIPRMD_P95_X_INPUT = 0.85
+UIPRMD_JITTER_X_REFERENCE = 2.5
+KERAAL_X_INPUT = 0.9
+SEAM_MAX = 1.1
+MAX_WORKERS = 2
+
+
+def _get(records: list[dict], dataset: str, method: str, region: str) -> dict | None:
+    return next((r for r in records if (r["dataset"], r["method"], r["region"]) == (dataset, method, region)), None)
+
+
+def check_bars(records: list[dict]) -> list[dict]:
+    """``[{bar, value, target, ok}]`` for the issue-8 bars on paired data."""
+    bars: list[dict] = []
+
+    def bar(name: str, value, target: float, ok: bool | None = None) -> None:
+        if ok is None:
+            ok = value is not None and value <= target
+        bars.append({"bar": name, "value": value, "target": target, "ok": bool(ok)})
+
+    def rel(dataset, region, key):
+        s, i = _get(records, dataset, "streamfix", region), _get(records, dataset, "input", region)
+        if s is None or i is None or s[key] is None or not i[key]:
+            return None
+        return s[key] / i[key]
+
+    datasets = list(dict.fromkeys(r["dataset"] for r in records))
+    if "uiprmd" in datasets:
+        for region in ("upper", "lower"):
+            bar(f"uiprmd {region}: streamfix debiased mean / input", rel("uiprmd", region, "debiased_mean_m"),
+                UIPRMD_MEAN_X_INPUT)
+            s = _get(records, "uiprmd", "streamfix", region)
+            others = [r for r in records if r["dataset"] == "uiprmd" and r["region"] == region
+                      and r["method"] != "input" and not r["method"].startswith("streamfix")]
+            best = min(others, key=lambda r: r["debiased_mean_m"], default=None)
+            if best is not None:
+                value = None if s is None else s["debiased_mean_m"] / best["debiased_mean_m"]
+                bars.append({"bar": f"uiprmd {region}: streamfix debiased mean / best baseline ({best['method']})",
+                             "value": value, "target": 1.0, "ok": value is not None and value < 1.0})
+        bar("uiprmd all: streamfix debiased p95 / input", rel("uiprmd", "all", "debiased_p95_m"), UIPRMD_P95_X_INPUT)
+        s = _get(records, "uiprmd", "streamfix", "all")
+        bar("uiprmd all: streamfix jitter / reference", None if s is None else s["jitter_ratio"],
+            UIPRMD_JITTER_X_REFERENCE)
+    if "keraal" in datasets:
+        bar("keraal all: streamfix debiased mean / input", rel("keraal", "all", "debiased_mean_m"), KERAAL_X_INPUT)
+        bar("keraal all: streamfix debiased p95 / input", rel("keraal", "all", "debiased_p95_m"), KERAAL_X_INPUT)
+    for dataset in datasets:
+        s = _get(records, dataset, "streamfix", "all")
+        bar(f"{dataset} all: streamfix seam ratio", None if s is None else s["seam_ratio"], SEAM_MAX)
+    return bars
+
+
+def _git_commit() -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def _markdown(records: list[dict], bars: list[dict], info: dict) -> str:
+    import io
+
+    buf = io.StringIO()
+    print_paired_table(records, out=buf)
+    lines = [
+        "# Paired recordings: methods against optical motion capture",
+        "",
+        f"Written by `benchmarks/bench_paired.py` on {info['date']} (commit {info['commit']}); "
+        f"{info['seconds']:.0f} s with {info['workers']} workers. Errors in mm; `x input` is the "
+        "debiased mean / p95 relative to the raw sensor; `jitter/ref` the output's mean second "
+        "difference over the reference's; `seam` the second difference on window hand-over frames "
+        "over the other frames. Definitions: `streamfix/evaluation/paired.py`.",
+        "",
+        "```",
+        buf.getvalue().strip("\n"),
+        "```",
+        "",
+        "| bar | value | target | |",
+        "| --- | --- | --- | --- |",
+    ]
+    for b in bars:
+        v = "-" if b["value"] is None else f"{b['value']:.3f}"
+        lines.append(f"| {b['bar']} | {v} | {b['target']:g} | {'ok' if b['ok'] else 'MISSED'} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--limit", type=int, default=None, metavar="N", help="at most N repetitions per dataset")
+    ap.add_argument("--workers", type=int, default=2, help="processes over repetitions (default 2)")
+    ap.add_argument("--methods", default=",".join(DEFAULT_METHODS), help="comma-separated method names")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="results directory (default benchmarks/results; a --limit run writes only with --out)")
+    args = ap.parse_args(argv)
+    if not 1 <= args.workers <= MAX_WORKERS:
+        ap.error(f"--workers must be 1..{MAX_WORKERS} (the benchmark machine is shared), got {args.workers}")
+    out_dir = args.out if args.out is not None else (None if args.limit else ROOT / "benchmarks" / "results")
+    methods = [m for m in args.methods.split(",") if m]
+
+    def progress(done: int, total: int) -> None:
+        if done == total or done % 50 == 0:
+            print(f"  {done}/{total} takes", file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", UserWarning)
+        records = run_paired([PAIRED], methods=methods, subset="trustworthy", limit=args.limit,
+                             workers=args.workers, progress=progress)
+    seconds = time.perf_counter() - t0
+    skipped = [str(w.message) for w in caught if "skipping method" in str(w.message)]
+    for msg in skipped:
+        print(f"warning: {msg}", file=sys.stderr)
+    print_paired_table(records)
+    bars = check_bars(records)
+    print()
+    for b in bars:
+        v = "-" if b["value"] is None else f"{b['value']:.3f}"
+        print(f"{'ok    ' if b['ok'] else 'MISSED'} {b['bar']}: {v} (target {b['target']:g})")
+    info = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+            "commit": _git_commit(), "seconds": seconds, "workers": args.workers, "limit": args.limit,
+            "methods": methods, "skipped": skipped, "data": str(PAIRED)}
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "paired.json").write_text(json.dumps(_clean({"run": info, "bars": bars, "records": records}),
+                                                        indent=1) + "\n")
+        (out_dir / "paired.md").write_text(_markdown(records, bars, info))
+        print(f"wrote {out_dir / 'paired.json'} and {out_dir / 'paired.md'}")
+    missed = [b for b in bars if not b["ok"]]
+    print(f"{len(bars) - len(missed)}/{len(bars)} bars met ({seconds:.0f} s)")
+    return 1 if missed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

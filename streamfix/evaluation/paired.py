@@ -1,0 +1,302 @@
+"""Paired protocol: clean a real sensor's skeleton and score it against optical motion capture.
+
+``streamfix eval --protocol paired [DIR]`` loads the paired recordings
+(:mod:`streamfix.io.paired`: UI-PRMD Kinect v1 + Vicon, KERAAL Kinect v2 + Vicon; default
+``../shared/data/paired``), runs every method on each take's sensor skeleton (the
+sensor's own rate and skeleton; nothing of the reference is given to a method) and
+scores the output against the reference, per dataset and per body region (``all``,
+``upper``, ``lower``: :func:`body_region`). One record per (dataset, method, region)::
+
+    {file, rate_hz, protocol: "paired", level: 0, method, dataset, region, subset,
+     n_takes, n_frames, n_joints,
+     aje_m = mean_error_m,        # mean |output - reference| (m), joints with a reference
+     coverage,                    # fraction of reference joint-frames the output has a value for
+                                  #   (errors are over these: a method leaving NaN scores fewer)
+     debiased_mean_m,             # the same after removing each joint's mean offset over the
+     debiased_p95_m,              #   take (per method): marker-vs-joint-centre bias is not the
+                                  #   cleaner's to fix; p95 over all joint-frames
+     jitter, jitter_reference,    # mean |second difference| (m/frame^2) on the same joint-frames
+     jitter_ratio,                # output / reference
+     bone_cv,                     # bone-length CV of the output (bones ending in the region)
+     lag_frames,                  # argmax of the velocity cross-correlation against the
+     lag_frames_median,           #   reference, pooled over takes / median of per-take argmax
+     seam_ratio,                  # mean |second difference| on frames next to an engine window
+                                  #   hand-over / on the other frames (every method: ~1 = no seam)
+     abe_m: None, time_s}
+
+Aggregation over takes: means are frame-weighted (pooled over joint-frames), p95 is over
+all joint-frames, bone CV is the frame-weighted mean of each take's CV.
+
+Lag: per take, the ``FAST_JOINTS`` joints of the region whose reference moves fastest;
+:func:`streamfix.core.reference_metrics.velocity_xcorr` over +-``MAX_LAG_FRAMES``.
+
+Seam: the streaming engine's window ``k`` ends at ``e_k = L + 1 + k H`` and contributes
+to output frames ``n`` with ``n < e_k <= n + L + 1`` (``streamfix.streaming.engine``), so
+a new window enters the overlap-add at frame ``e_k - L - 1 = k H`` with a large Hann
+weight (it leaves at ``e_k`` with weight ~0). The two frames around each entry,
+``k H - 1`` and ``k H`` (``k >= 1``), are the hand-over frames; ``H``, ``L`` come from
+``EngineConfig(rate_hz=...)`` at the take's rate.
+
+Methods come from :mod:`streamfix.evaluation.registry`; names it does not know are
+skipped with a warning (:data:`DEFAULT_METHODS` names the baselines users pick).
+"""
+from __future__ import annotations
+
+import functools
+import inspect
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..core import metrics
+from ..core.reference_metrics import remove_mean_offset, second_difference_norm, velocity_xcorr
+from ..io.paired import PairedTake, TakeRef, default_paired_dir, find_takes, load_take
+from . import registry
+
+__all__ = ["run_paired", "score_take", "aggregate", "body_region", "handover_frames", "print_paired_table",
+           "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
+
+DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix")
+REGIONS = ("all", "upper", "lower")
+MAX_LAG_FRAMES = 10
+FAST_JOINTS = 3
+_LOWER_WORDS = ("hip", "knee", "ankle", "foot", "toe", "heel", "waist", "pelvis", "spinebase")
+
+
+def body_region(joint_name: str) -> str:
+    """``'lower'`` for the pelvis and legs (hip, knee, ankle, foot, waist, ...), else ``'upper'``."""
+    name = joint_name.lower()
+    return "lower" if any(w in name for w in _LOWER_WORDS) else "upper"
+
+
+def handover_frames(n_frames: int, rate_hz: float) -> np.ndarray:
+    """``(T,)`` bool: frames ``k H - 1`` and ``k H`` (``k >= 1``) of the engine's default schedule."""
+    from ..streaming.engine import EngineConfig
+
+    hop = EngineConfig(rate_hz=rate_hz).hop
+    n = np.arange(n_frames)
+    return (n >= hop - 1) & ((n % hop == 0) | (n % hop == hop - 1))
+
+
+def _run_method(name: str, take: PairedTake) -> np.ndarray:
+    """``registry.run_method`` on the take's sensor skeleton (passing ``skeleton=`` where accepted)."""
+    m = take.sensor
+    kwargs = {"skeleton": m.skeleton} if _takes_skeleton() else {}
+    return registry.run_method(name, m.positions, m.confidence, m.skeleton.bone_array, m.rate_hz, **kwargs)
+
+
+@functools.lru_cache(maxsize=1)
+def _takes_skeleton() -> bool:
+    return "skeleton" in inspect.signature(registry.run_method).parameters
+
+
+def _region_joints(take: PairedTake) -> dict[str, np.ndarray]:
+    names = take.sensor.skeleton.joint_names
+    lower = np.array([body_region(n) == "lower" for n in names])
+    everything = np.ones(len(names), dtype=bool)
+    return {"all": everything, "upper": ~lower, "lower": lower}
+
+
+def score_take(take: PairedTake, methods: list[str]) -> dict:
+    """Partial sums of every measure for one take: ``{(method, region): {...}}`` (see :func:`aggregate`)."""
+    ref = take.reference
+    T = ref.shape[0]
+    has_ref = np.isfinite(ref).all(axis=2)  # (T, J)
+    d2_ref = second_difference_norm(ref)
+    seam = handover_frames(T, take.sensor.rate_hz)
+    bones = take.sensor.skeleton.bone_array
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # joints without a reference: NaN speed
+        speed = np.nanmean(np.linalg.norm(np.diff(ref, axis=0), axis=2), axis=0)
+    regions = _region_joints(take)
+    out: dict = {}
+    for name in methods:
+        t0 = time.perf_counter()
+        y = _run_method(name, take)
+        dt = time.perf_counter() - t0
+        err = np.linalg.norm(y - ref, axis=2)
+        deb = np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)
+        d2 = second_difference_norm(y)
+        for region, joints in regions.items():
+            jm = joints[None, :]
+            e_ok = has_ref & jm & np.isfinite(err)
+            j_ok = np.isfinite(d2_ref) & np.isfinite(d2) & jm
+            region_bones = bones[joints[bones[:, 1]]]
+            cv = metrics.bone_length_cv(y, region_bones) if len(region_bones) else float("nan")
+            ref_joints = np.flatnonzero(joints & take.referenced)
+            fast = ref_joints[np.argsort(-np.nan_to_num(speed[ref_joints]))[:FAST_JOINTS]]
+            lags, xc = velocity_xcorr(y[:, fast], ref[:, fast], MAX_LAG_FRAMES)
+            s_ok = np.isfinite(d2) & jm
+            out[(name, region)] = {
+                "frames": T,
+                "err_sum": float(err[e_ok].sum()), "err_n": int(e_ok.sum()), "ref_n": int((has_ref & jm).sum()),
+                "deb": deb[e_ok & np.isfinite(deb)].astype(np.float32),
+                "jit_sum": float(d2[j_ok].sum()), "jit_ref_sum": float(d2_ref[j_ok].sum()), "jit_n": int(j_ok.sum()),
+                "cv": cv,
+                "xcorr": xc, "lag": int(lags[np.nanargmax(xc)]) if np.isfinite(xc).any() else None,
+                "seam_sum": float(d2[s_ok & seam[:, None]].sum()), "seam_n": int((s_ok & seam[:, None]).sum()),
+                "other_sum": float(d2[s_ok & ~seam[:, None]].sum()), "other_n": int((s_ok & ~seam[:, None]).sum()),
+                "time_s": dt,
+                "rate_hz": take.sensor.rate_hz,
+                "n_joints": int((joints & take.referenced).sum()),
+            }
+    return out
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return a / b if b > 0 else None
+
+
+_SUMMED = ("frames", "err_sum", "err_n", "ref_n", "jit_sum", "jit_ref_sum", "jit_n",
+           "seam_sum", "seam_n", "other_sum", "other_n", "time_s")  # partial sums pooled over takes
+
+
+def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
+    """Pool :func:`score_take` results ``[(dataset, partial), ...]`` into one record per
+    (dataset, method, region), in first-seen order."""
+    pooled: dict[tuple, list[dict]] = {}
+    for dataset, part in partials:
+        for (method, region), p in part.items():
+            pooled.setdefault((dataset, method, region), []).append(p)
+    records = []
+    for (dataset, method, region), ps in pooled.items():
+        s = {k: sum(p[k] for p in ps) for k in _SUMMED}
+        deb = np.concatenate([p["deb"] for p in ps]).astype(np.float64)
+        cvs = np.array([p["cv"] for p in ps], dtype=np.float64)
+        w = np.array([p["frames"] for p in ps], dtype=np.float64)
+        ok = np.isfinite(cvs)
+        xcs = np.array([p["xcorr"] for p in ps])
+        xc = np.nansum(xcs * w[:, None], axis=0) if np.isfinite(xcs).any() else None
+        lags = [p["lag"] for p in ps if p["lag"] is not None]
+        mean_err = s["err_sum"] / s["err_n"] if s["err_n"] else None
+        jit = s["jit_sum"] / s["jit_n"] if s["jit_n"] else None
+        jit_ref = s["jit_ref_sum"] / s["jit_n"] if s["jit_n"] else None
+        other = s["other_sum"] / s["other_n"] if s["other_n"] else None
+        records.append({
+            "rate_hz": float(np.average([p["rate_hz"] for p in ps], weights=w)),
+            "protocol": "paired",
+            "level": 0.0,
+            "method": method,
+            "dataset": dataset,
+            "region": region,
+            "n_takes": len(ps),
+            "n_frames": int(s["frames"]),
+            "n_joints": max(p["n_joints"] for p in ps),
+            "aje_m": mean_err,
+            "abe_m": None,
+            "gap_mae_m": None,
+            "mean_error_m": mean_err,
+            "coverage": s["err_n"] / s["ref_n"] if s["ref_n"] else None,
+            "debiased_mean_m": float(deb.mean()) if deb.size else None,
+            "debiased_p95_m": float(np.percentile(deb, 95)) if deb.size else None,
+            "jitter": jit,
+            "jitter_reference": jit_ref,
+            "jitter_ratio": _ratio(jit, jit_ref) if jit is not None else None,
+            "bone_cv": float(np.average(cvs[ok], weights=w[ok])) if ok.any() else None,
+            "lag_frames": int(np.nanargmax(xc) - MAX_LAG_FRAMES) if xc is not None else None,
+            "lag_frames_median": float(np.median(lags)) if lags else None,
+            "seam_ratio": _ratio(s["seam_sum"] / s["seam_n"], other) if s["seam_n"] and other else None,
+            "time_s": s["time_s"],
+        })
+    return records
+
+
+def _score_ref(args: tuple[TakeRef, list[str]]) -> tuple[str, dict]:
+    ref, methods = args
+    return ref.dataset, score_take(load_take(ref), methods)
+
+
+def known_methods(methods) -> list[str]:
+    """The requested methods (None = :data:`DEFAULT_METHODS`) the registry knows; others
+    are skipped with a warning."""
+    wanted = list(DEFAULT_METHODS if methods is None else methods)
+    known = [m for m in wanted if m in registry.METHODS]
+    skipped = [m for m in wanted if m not in registry.METHODS]
+    if skipped:
+        warnings.warn(f"paired protocol: skipping method(s) the registry does not know: {', '.join(skipped)}",
+                      stacklevel=2)
+    if not known:
+        raise ValueError(f"no method to run: {', '.join(wanted)} unknown; expected some of: "
+                         f"{', '.join(registry.METHODS)}")
+    return known
+
+
+def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, subset: str = "trustworthy",
+               limit: int | None = None, workers: int = 1, progress=None) -> list[dict]:
+    """Score methods on the paired recordings (see the module doc for the records).
+
+    ``paths``: paired directories or files (:func:`streamfix.io.paired.find_takes`;
+    empty = the default directory). ``subset`` ``trustworthy`` | ``all`` (UI-PRMD);
+    ``limit``: at most N repetitions per dataset, spread over the list. ``workers``:
+    processes (takes are independent). ``levels`` and ``seed`` do not apply (real data,
+    no corruption); ``rate_hz`` must be None: every take runs at its sensor's rate.
+    """
+    if rate_hz is not None:
+        raise ValueError(f"the paired protocol runs each take at its sensor's own rate; got --rate {rate_hz:g}")
+    if levels is not None:
+        raise ValueError(f"the paired protocol scores real sensor errors, it has no corruption levels; got {levels}")
+    methods = known_methods(methods)
+    sources = [Path(p) for p in paths] or [default_paired_dir()]
+    records: list[dict] = []
+    for src in sources:
+        refs = find_takes(src, subset=subset, limit=limit)
+        jobs = [(r, methods) for r in refs]
+        if workers > 1 and len(jobs) > 1:
+            import multiprocessing
+
+            with multiprocessing.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+                part = []
+                for i, res in enumerate(pool.imap(_score_ref, jobs, chunksize=4)):
+                    part.append(res)
+                    if progress is not None:
+                        progress(i + 1, len(jobs))
+        else:
+            part = []
+            for i, job in enumerate(jobs):
+                part.append(_score_ref(job))
+                if progress is not None:
+                    progress(i + 1, len(jobs))
+        for rec in aggregate(part):
+            rec["file"] = str(src)
+            rec["subset"] = subset
+            records.append(rec)
+    return records
+
+
+def _mm(v) -> str:
+    return "-" if v is None else f"{v * 1000:.1f}"
+
+
+def _num(v, digits=2) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def print_paired_table(records: list[dict], out=None) -> None:
+    """One table per (dataset, region): errors in mm, ratios against ``input``."""
+    out = sys.stdout if out is None else out
+    groups: dict[tuple, list[dict]] = {}
+    for r in records:
+        groups.setdefault((r["file"], r["dataset"], r["region"]), []).append(r)
+    cols = ("mean mm", "debiased mm", "x input", "p95 mm", "x input", "jitter/ref", "bone CV", "lag fr", "seam")
+    for (file, dataset, region), recs in groups.items():
+        base = next((r for r in recs if r["method"] == "input"), None)
+        print(f"\n{dataset} ({recs[0]['n_takes']} takes, {recs[0]['n_frames']} frames, {recs[0].get('subset', '')}), "
+              f"region {region}: {file}", file=out)
+        print(f"{'method':<16}" + "".join(f"{c:>12}" for c in cols), file=out)
+        for r in recs:
+            rel = [None, None]
+            if base is not None:
+                for i, k in enumerate(("debiased_mean_m", "debiased_p95_m")):
+                    if r[k] is not None and base[k]:
+                        rel[i] = r[k] / base[k]
+            row = [_mm(r["mean_error_m"]), _mm(r["debiased_mean_m"]), _num(rel[0]), _mm(r["debiased_p95_m"]),
+                   _num(rel[1]), _num(r["jitter_ratio"]), _num(r["bone_cv"], 4),
+                   "-" if r["lag_frames"] is None else str(r["lag_frames"]), _num(r["seam_ratio"])]
+            print(f"{r['method']:<16}" + "".join(f"{c:>12}" for c in row), file=out)
+
+
+run_paired.print_table = print_paired_table  # `streamfix eval` prints these records with it
+PROTOCOLS = {"paired": run_paired}

@@ -1,0 +1,120 @@
+"""Paired-protocol measures on constructed cases, and the hand-over frames against the real engine."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from streamfix.core.reference_metrics import remove_mean_offset, second_difference_norm, velocity_xcorr
+from streamfix.core.rigid import fit_rigid, fit_rigid_with_offsets
+from streamfix.evaluation.paired import aggregate, body_region, handover_frames, score_take
+from streamfix.io.paired import PairedTake, find_takes, load_take
+from streamfix.motion import Motion
+from streamfix.streaming.engine import EngineConfig, WindowOutput
+from streamfix.streaming.offline import clean_motion
+
+
+def _smooth_motion(T=200, J=5, seed=0) -> np.ndarray:
+    """Sums of sines with random phases: a smooth (T, J, 3) path in metres."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None]
+    f = rng.uniform(0.02, 0.08, (1, J, 3))
+    return 0.3 * np.sin(2 * np.pi * f * t + rng.uniform(0, 6, (1, J, 3))) + rng.normal(0, 1, (1, J, 3))
+
+
+def test_debiasing_removes_a_known_offset():
+    ref = _smooth_motion()
+    rng = np.random.default_rng(1)
+    offset = rng.normal(0, 0.05, (1, ref.shape[1], 3))
+    noise = rng.normal(0, 0.002, ref.shape)
+    pred = ref + offset + noise
+    ref[5:9, 2] = np.nan  # missing reference samples do not disturb the mean offset
+    raw = np.nanmean(np.linalg.norm(pred - ref, axis=2))
+    deb = np.nanmean(np.linalg.norm(remove_mean_offset(pred, ref) - ref, axis=2))
+    assert raw > 0.04 and deb < 0.005
+    np.testing.assert_allclose((remove_mean_offset(pred, ref) - pred)[0], -np.nanmean(pred - ref, axis=0))
+
+
+@pytest.mark.parametrize("delay", [3, -2, 0])
+def test_lag_finds_a_known_delay(delay):
+    ref = _smooth_motion(T=240, seed=2)
+    pred = np.roll(ref, delay, axis=0)  # pred(t) = ref(t - delay): late by `delay` frames
+    pred[: max(delay, 0)] = np.nan
+    if delay < 0:
+        pred[delay:] = np.nan
+    lags, corr = velocity_xcorr(pred, ref, max_lag=8)
+    assert lags[np.nanargmax(corr)] == delay
+    assert np.nanmax(corr) == pytest.approx(1.0)
+
+
+def test_second_difference_is_zero_on_a_line_and_nan_at_the_ends():
+    x = np.linspace(0, 1, 20)[:, None, None] * np.array([1.0, 2.0, 3.0])
+    d2 = second_difference_norm(np.repeat(x, 2, axis=1))
+    assert np.isnan(d2[[0, -1]]).all() and np.allclose(d2[1:-1], 0.0)
+
+
+def test_rigid_fits_recover_a_known_transform():
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    A = q * np.sign(np.linalg.det(q))  # a rotation
+    b = np.array([0.3, -1.0, 2.5])
+    # bodies with known offsets: y = A (R o + p) + b, plus one gross outlier
+    T, K = 120, 4
+    Rb = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(T * K)]).reshape(T, K, 3, 3)
+    Rb *= np.sign(np.linalg.det(Rb))[..., None, None]
+    p = rng.normal(0, 1, (T, K, 3))  # body positions
+    o = rng.normal(0, 0.08, (K, 3))
+    y = (p + np.einsum("tkij,kj->tki", Rb, o)) @ A.T + b
+    A1, b1 = fit_rigid(p.reshape(-1, 3) + np.einsum("tkij,kj->tki", Rb, o).reshape(-1, 3), y.reshape(-1, 3))
+    np.testing.assert_allclose(A1, A, atol=1e-9)
+    np.testing.assert_allclose(b1, b, atol=1e-9)
+    y[7, 1, 0] += 1.0  # a hand 1 m off for one frame
+    fit = fit_rigid_with_offsets(y, Rb, p)
+    np.testing.assert_allclose(fit.rotation, A, atol=1e-6)
+    np.testing.assert_allclose(fit.offsets, o, atol=1e-6)
+    assert not fit.inliers[7, 1] and fit.inliers.sum() == T * K - 1
+    assert fit.residuals[7, 1] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_reference_scored_against_itself():
+    """Jitter ratio 1, no error, no lag, when the 'sensor' is the reference itself."""
+    take = load_take(next(r for r in find_takes(limit=3) if r.dataset == "uiprmd"))
+    ref = take.reference
+    sensor = np.where(np.isfinite(ref), ref, take.sensor.positions)
+    same = PairedTake("uiprmd", take.key, take.subject, take.movement, True,
+                      Motion.from_positions(sensor, take.sensor.skeleton, take.sensor.rate_hz), ref)
+    recs = aggregate([("uiprmd", score_take(same, ["input"]))])
+    assert {r["region"] for r in recs} == {"all", "upper", "lower"}
+    for r in recs:
+        assert r["jitter_ratio"] == pytest.approx(1.0)
+        assert r["mean_error_m"] == 0.0 and r["debiased_mean_m"] < 1e-9
+        assert r["lag_frames"] == 0 and r["n_takes"] == 1
+
+
+def test_regions_by_joint_name():
+    assert [body_region(n) for n in ("LKnee", "HipRight", "Waist", "SpineBase", "FootLeft")] == ["lower"] * 5
+    assert [body_region(n) for n in ("HeadTip", "Neck", "RWrist", "HandLeft", "SpineShoulder")] == ["upper"] * 5
+
+
+def test_handover_frames_are_where_the_engine_blends_in_a_new_window():
+    """Run the real engine with a window solver that records which input frame each
+    window ends at: a window ending at ``e`` first reaches the output at frame
+    ``e - L - 1``; the hand-over frames are that frame and the one before it."""
+    take = load_take(next(r for r in find_takes(limit=12) if r.dataset == "uiprmd"))
+    m = take.sensor
+    ends = []
+
+    def solver(positions, confidence, bones, bone_lengths, rate_hz, config=None, state=None, init=None, **kw):
+        last = np.asarray(positions)[-1]
+        ends.append(int(np.argmin(np.nansum(np.abs(m.positions - last), axis=(1, 2)))) + 1)
+        return WindowOutput(np.array(positions), np.zeros(positions.shape[:2], dtype=bool))
+
+    clean_motion(m, window_solver=solver)
+    cfg = EngineConfig(rate_hz=m.rate_hz)
+    T, L = m.n_frames, cfg.lookahead
+    entries = sorted({e - L - 1 for e in ends if e < T and e - L - 1 > 0})  # the flush window ends at T
+    assert len(entries) >= 3
+    assert entries == list(range(cfg.hop, T - L - 1, cfg.hop))
+    expected = np.zeros(T, dtype=bool)
+    expected[[n for e in entries for n in (e - 1, e)]] = True
+    n = T - L - 1  # before the flush window
+    assert np.array_equal(handover_frames(T, m.rate_hz)[:n], expected[:n])
