@@ -28,6 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--methods", action="append", default=None, metavar="NAME[,NAME...]",
                         help="methods to score (default: all): a comma-separated list; may be repeated")
     parser.add_argument("--json", action="store_true", help="print one JSON document (a list of records)")
+    parser.add_argument("--report", default=None, metavar="DIR",
+                        help="also write DIR/<file>.html: plots of each file cleaned by the engine (streamfix report)")
 
 
 def _clean(value):
@@ -127,6 +129,15 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"streamfix eval: {exc}", file=sys.stderr)
         return 1
+    if args.report:  # plotted reports (streamfix/report), one per input file
+        try:
+            from ..report import write_file_reports
+
+            for path in write_file_reports(args.files, args.report, args.rate):
+                print(f"streamfix eval: wrote {path}", file=sys.stderr)
+        except (ModuleNotFoundError, OSError, ValueError) as exc:
+            print(f"streamfix eval: --report {args.report}: {exc}", file=sys.stderr)
+            return 1
     if args.json:
         json.dump(_clean(records), sys.stdout, indent=1)
         sys.stdout.write("\n")
