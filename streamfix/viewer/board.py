@@ -175,9 +175,14 @@ class FrameBoard:
                 self._cond.wait(remaining)
             dropped = 0
             for s, st in fresh:
-                dropped += st.count - seen.get(s, 0) - 1 if s in seen else 0
+                dropped += st.count - seen.get(s, 0) - 1
                 seen[s] = st.count
             return [st.record for _, st in fresh], dropped, len(fresh)
+
+    def counts(self) -> dict[str, int]:
+        """Instants published so far per stream (a new reader starts from these)."""
+        with self._cond:
+            return {s: st.count for s, st in self._streams.items()}
 
     def held_frames(self) -> int:
         """Raw/live instants held while waiting for their clean partner (all streams)."""
@@ -195,7 +200,7 @@ class BoardReader:
 
     def __init__(self, board: FrameBoard) -> None:
         self.board = board
-        self.seen: dict[str, int] = {}
+        self.seen: dict[str, int] = board.counts()  # what came before this reader joined is not "dropped"
         self.dropped = 0
         self.taken = 0
         self.max_queue = 0

@@ -9,6 +9,7 @@ its WebSocket with ``Runtime.evaluate`` and ``Page.captureScreenshot``.
 from __future__ import annotations
 
 import base64
+import contextlib
 import itertools
 import json
 import os
@@ -51,6 +52,7 @@ class HeadlessChromium:
         if exe is None:
             raise FileNotFoundError(f"no Chromium found (looked for $CHROMIUM and {', '.join(_CANDIDATES)})")
         self._profile = tempfile.mkdtemp(prefix="sf-chromium-")
+        self._stack = contextlib.ExitStack()
         args = [
             exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
             "--no-first-run", "--no-default-browser-check", "--disable-extensions",
@@ -66,7 +68,7 @@ class HeadlessChromium:
             with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=10) as r:
                 targets = json.load(r)
             page = next(t for t in targets if t.get("type") == "page")
-            self._ws = connect(page["webSocketDebuggerUrl"], max_size=64 * 2**20, open_timeout=10)
+            self._ws = self._stack.enter_context(connect(page["webSocketDebuggerUrl"], max_size=64 * 2**20, open_timeout=10))
         except BaseException:
             self.close()
             raise
@@ -132,9 +134,7 @@ class HeadlessChromium:
         return path
 
     def close(self) -> None:
-        ws = getattr(self, "_ws", None)
-        if ws is not None:
-            ws.close()
+        self._stack.close()  # the DevTools WebSocket
         if self.proc.poll() is None:
             self.proc.terminate()
             try:

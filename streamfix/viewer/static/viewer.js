@@ -19,7 +19,7 @@ let dirty = false;
 let ws = null;
 
 const status = window.sfStatus = {
-  connected: false, messages: 0, records: 0, framesDrawn: 0, rafTicks: 0, renderFps: 0,
+  connected: false, messages: 0, records: 0, framesDrawn: 0, rafTicks: 0, renderFps: 0, drawMs: 0,
   streams: 0, bodies: 0, expectedJoints: 0, jointsDrawn: { raw: 0, live: 0, clean: 0 }, recoveredDrawn: 0,
   lastSeq: {}, bridge: null, error: null,
 };
@@ -279,8 +279,10 @@ function frame(now) {
   try {
     if (dirty) {
       dirty = false;
+      const t0 = performance.now();
       status.jointsDrawn = drawScene();
       drawPlots();
+      status.drawMs = 0.9 * status.drawMs + 0.1 * (performance.now() - t0);  // smoothed cost of one draw
       status.framesDrawn += 1;
       fpsFrames += 1;
     }
