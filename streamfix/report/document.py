@@ -114,7 +114,7 @@ def render_figures(d: ReportData) -> dict[str, bytes]:
     return out
 
 
-def _summary_rows(summary: dict) -> list[tuple[str, str]]:
+def _summary_rows(summary: dict, d: ReportData) -> list[tuple[str, str]]:
     def f(key, fmt="{:.2f}"):
         v = summary.get(key)
         return "-" if v is None or not np.isfinite(v) else fmt.format(v)
@@ -124,8 +124,9 @@ def _summary_rows(summary: dict) -> list[tuple[str, str]]:
                                    f"{summary['joints']} joints"),
         ("input: missing / inferred", f"{f('missing_pct', '{:.1f}')} % / {f('inferred_pct', '{:.1f}')} % of joint samples"),
         ("recovered by the cleaner", f"{f('recovered_pct', '{:.1f}')} % of joint samples"),
-        ("jitter |x''| (mm/frame^2)", f"{f('jitter_raw_mm', '{:.3f}')} raw -> {f('jitter_clean_mm', '{:.3f}')} cleaned"),
+        ("jitter, mean |2nd difference| (mm/frame^2)", f"{f('jitter_raw_mm', '{:.3f}')} raw -> {f('jitter_clean_mm', '{:.3f}')} cleaned"),
         ("bone-length CV (%)", f"{f('bone_cv_raw_pct')} raw -> {f('bone_cv_clean_pct')} cleaned"),
+        ("joints plotted", ", ".join(d.raw.skeleton.joint_names[j] for j in d.joints)),
     ]
     if "ref_error_raw_cm" in summary:
         rows += [
@@ -140,11 +141,11 @@ def render_png(d: ReportData, summary: dict) -> bytes:
     from matplotlib.figure import Figure
 
     names = _figure_names(d)
-    text_h = 0.35 + 0.22 * len(_summary_rows(summary))
+    text_h = 0.35 + 0.22 * len(_summary_rows(summary, d))
     heights = [text_h] + [figure_height(n, d) for n in names]
     fig = Figure(figsize=(WIDTH_IN, sum(heights)), layout="constrained")
     subs = fig.subfigures(len(heights), 1, height_ratios=heights)
-    lines = [f"streamfix report: {d.name}"] + [f"{k}: {v}" for k, v in _summary_rows(summary)]
+    lines = [f"streamfix report: {d.name}"] + [f"{k}: {v}" for k, v in _summary_rows(summary, d)]
     subs[0].text(0.01, 0.95, "\n".join(lines), va="top", ha="left", family="monospace", fontsize=9)
     for sub, name in zip(subs[1:], names):
         FIGURES[name][0](sub, d)
@@ -153,7 +154,7 @@ def render_png(d: ReportData, summary: dict) -> bytes:
 
 def render_html(d: ReportData, summary: dict) -> str:
     pngs = render_figures(d)
-    rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in _summary_rows(summary))
+    rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in _summary_rows(summary, d))
     blocks = "".join(
         f'<figure><img alt="{name}" src="data:image/png;base64,{base64.b64encode(png).decode()}">'
         f"<figcaption>{html.escape(FIGURES[name][3])}</figcaption></figure>"

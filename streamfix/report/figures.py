@@ -39,11 +39,22 @@ class ReportData:
 
 
 def choose_joints(raw: Motion, clean: Motion, reference: np.ndarray | None, n: int = 2) -> list[int]:
-    """The ``n`` joints that move most (path length of the cleaned trajectory), with a reference if any."""
+    """The ``n`` joints that move most (path length of the cleaned trajectory), no two joined by a bone.
+
+    With a reference, only joints that have one. Skipping a moving joint's bone neighbours
+    (a hand next to its wrist, a thumb next to its hand) shows ``n`` different limbs.
+    """
     path = np.nansum(np.linalg.norm(np.diff(clean.positions, axis=0), axis=2), axis=0)
     if reference is not None:
         path = np.where(np.isfinite(reference).all(axis=2).any(axis=0), path, -1.0)
-    return [int(j) for j in np.argsort(-path)[:n]]
+    neighbours = {frozenset(b) for b in raw.skeleton.bones}
+    picked: list[int] = []
+    for j in np.argsort(-path):
+        if not any(frozenset((int(j), k)) in neighbours for k in picked):
+            picked.append(int(j))
+        if len(picked) == n:
+            break
+    return picked
 
 
 def _debiased_reference(d: ReportData, j: int) -> np.ndarray:
