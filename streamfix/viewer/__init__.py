@@ -1,7 +1,7 @@
 """Live browser viewer of raw versus cleaned skeletons (``streamfix view``).
 
-A service's ``raw``/``live``/``clean`` topics are paired by instant on a newest-only
-:class:`FrameBoard` (:mod:`.bridge` feeds it from ZeroMQ) and streamed to a page over
+A service's ``raw``/``live``/``clean`` topics are paired by instant on a
+:class:`FrameBoard` that keeps the newest few (:mod:`.bridge` feeds it from ZeroMQ), streamed to a page over
 WebSocket by :class:`ViewerServer`; the page (``static/``, plain JavaScript, no build
 step) draws every body in 3D and rolling plots on ``requestAnimationFrame``.
 :mod:`.headless` drives a headless Chromium over the DevTools protocol (tests, benchmark).

@@ -1,4 +1,4 @@
-"""The viewer's frame board: raw and cleaned frames of one instant, newest only.
+"""The viewer's frame board: raw and cleaned frames of one instant, the newest few only.
 
 The service sends ``raw`` and ``live`` frames at once and ``clean`` frames a fixed
 lookahead later (0.5 s by default). To show raw versus clean *of the same instant*
@@ -7,17 +7,21 @@ sensor time, and pairs each arriving ``clean`` frame with them (SPEC section 2: 
 three topics carry the same ``t_sensor_ns`` for one instant). A clean frame whose
 raw partner never arrived is shown without it.
 
-Never a backlog: the board keeps only the **newest paired instant per stream**. A
-reader (one per browser connection) remembers how many instants of each stream it
-has taken; an instant replaced before a reader took it is *dropped* for that reader
-and counted. So what a reader has pending is at most one record per stream, however
-slow it is, and the held raw frames are bounded by ``hold_s`` x the stream rate.
+Never a backlog: the board keeps only the **newest ``keep`` paired instants per stream**
+(a few frames). A reader (one per browser connection) remembers how many instants of
+each stream it has taken; instants pushed out before a reader took them are *dropped*
+for that reader and counted. So what a reader has pending is at most ``keep`` records
+per stream however slow it is, and the held raw frames are bounded by ``hold_s`` x the
+stream rate. Why a few and not only the newest: the service emits ``clean`` frames a
+window hop at a time (several in the same millisecond); with newest-only even an idle
+page would miss most of each burst, and its rolling plots would be decimated. The page
+plays the few it gets at their sensor timing (see ``static/viewer.js``).
 """
 from __future__ import annotations
 
 import threading
 import time
-from collections import Counter, OrderedDict
+from collections import Counter, OrderedDict, deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -72,22 +76,26 @@ class _Held:
 class _Stream:
     held: "OrderedDict[int, _Held]" = field(default_factory=OrderedDict)
     count: int = 0           # instants published on the board
-    record: dict | None = None
+    records: deque = field(default_factory=deque)  # (instant number, record), the newest `keep`
 
 
 class FrameBoard:
-    """Pairs raw/live/clean frames by instant and keeps the newest pair per stream.
+    """Pairs raw/live/clean frames by instant and keeps the newest few pairs per stream.
 
     ``hold_s``: seconds of raw/live frames held while their clean partner is due
-    (longer than the service's lookahead plus its compute time).
+    (longer than the service's lookahead plus its compute time). ``keep``: paired
+    instants kept per stream for readers (the bound on what a reader can have pending).
     ``counters``: frames ingested per kind, ``paired`` / ``unpaired`` clean frames,
     ``expired`` raw instants that never met a clean frame.
     """
 
-    def __init__(self, hold_s: float = 5.0) -> None:
+    def __init__(self, hold_s: float = 5.0, keep: int = 8) -> None:
         if not hold_s > 0:
             raise ValueError(f"hold_s must be > 0 seconds, got {hold_s}")
+        if keep < 1:
+            raise ValueError(f"keep must be >= 1 record per stream, got {keep}")
         self.hold_ns = int(hold_s * 1e9)
+        self.keep = int(keep)
         self.counters: Counter = Counter()
         self.layouts: dict[str, dict] = {}  # stream -> {"skeleton", "joint_names", "bones", "rate_hz"}
         self._streams: dict[str, _Stream] = {}
@@ -110,7 +118,9 @@ class FrameBoard:
         recv = time.time_ns() if recv_time_ns is None else int(recv_time_ns)
         with self._cond:
             self.counters[kind] += 1
-            st = self._streams.setdefault(frame.stream_id, _Stream())
+            st = self._streams.get(frame.stream_id)
+            if st is None:
+                st = self._streams[frame.stream_id] = _Stream(records=deque(maxlen=self.keep))
             t = int(frame.sensor_time_ns)
             if kind in ("raw", "live"):
                 held = st.held.get(t)
@@ -124,7 +134,7 @@ class FrameBoard:
             held = st.held.pop(t, None) or _Held()
             self.counters["paired" if held.raw is not None else "unpaired"] += 1
             st.count += 1
-            st.record = self._record(frame, held, recv)
+            st.records.append((st.count, self._record(frame, held, recv)))
             self._version += 1
             self._cond.notify_all()
 
@@ -150,6 +160,7 @@ class FrameBoard:
             "t": clean.sensor_time_ns / 1e9,
             "skeleton": clean.skeleton,
             "filled": bool(clean.filled),
+            "t_publish_ms": clean.publish_time_ns / 1e6 if clean.publish_time_ns > 0 else None,  # wall clock
             "bodies": bodies,
             "latency_ms": {  # wall-clock stamps of the service: delays it added, and the wire's
                 "live": _ms(live_pub, raw_pub),
@@ -173,11 +184,14 @@ class FrameBoard:
                 if remaining <= 0:
                     return [], 0, 0
                 self._cond.wait(remaining)
+            out: list[dict] = []
             dropped = 0
             for s, st in fresh:
-                dropped += st.count - seen.get(s, 0) - 1
+                new = [rec for n, rec in st.records if n > seen.get(s, 0)]
+                dropped += st.count - seen.get(s, 0) - len(new)
                 seen[s] = st.count
-            return [st.record for _, st in fresh], dropped, len(fresh)
+                out += new
+            return out, dropped, len(out)
 
     def counts(self) -> dict[str, int]:
         """Instants published so far per stream (a new reader starts from these)."""
@@ -193,9 +207,10 @@ class FrameBoard:
 class BoardReader:
     """One consumer's view of a :class:`FrameBoard` (one per browser connection).
 
-    :meth:`take` returns the newest record of every stream that has a new one, the
-    count of records this reader missed since its last take (``dropped``) and how
-    many were pending (``queue``: never more than the number of streams).
+    :meth:`take` returns the records this reader has not taken yet, oldest first per
+    stream (at most the board's ``keep`` per stream), counts those pushed out before it
+    took them (``dropped``) and how many it got (``queue``: never more than ``keep`` x
+    the number of streams).
     """
 
     def __init__(self, board: FrameBoard) -> None:

@@ -9,7 +9,7 @@ validation are :class:`streamfix.transport.zmq_io.Subscriber`'s; malformed messa
 counted there and skipped.
 
 The bridge drains its socket continuously on its own thread and does nothing slow per
-message (the board keeps newest-only records), so the service's PUB never queues for
+message (the board keeps the newest few records), so the service's PUB never queues for
 it; its receive high-water mark is small, so if the process stalls, ZeroMQ drops for
 this subscriber alone rather than buffering minutes of frames.
 """

@@ -6,14 +6,15 @@ snapshot (board counters, per-page queue and drops, what each page last reported
 itself: frames drawn, joints drawn, render rate).
 
 WebSocket messages, server to page (JSON text): ``{"type": "frames", "records": [...],
-"layouts": {stream: layout}, "bridge": {...}}`` where each record is one stream's newest
-paired instant (:class:`~streamfix.viewer.board.FrameBoard`) and ``layouts`` holds only
-streams the page has not seen yet. Page to server: ``{"type": "ack"}`` after each
+"layouts": {stream: layout}, "bridge": {...}}`` where ``records`` are the paired instants
+this page has not had yet, oldest first per stream (at most the board's few newest per
+stream: :class:`~streamfix.viewer.board.FrameBoard`), and ``layouts`` holds only streams
+the page has not seen yet. Page to server: ``{"type": "ack"}`` after each
 frames message, and ``{"type": "status", ...}`` now and then.
 
 Flow control, so nothing queues anywhere: the server sends a frames message only while
 fewer than ``window`` are unacknowledged; until the page acknowledges, the board keeps
-overwriting each stream's record (counted as dropped for that page). A slow page or
+pushing the oldest records out (counted as dropped for that page). A slow page or
 network therefore sees fewer, newer frames, never older ones late.
 """
 from __future__ import annotations

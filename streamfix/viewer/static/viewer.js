@@ -1,25 +1,30 @@
 // streamfix view: raw vs cleaned skeletons in 3D (hand-written canvas renderer) and rolling plots.
 //
 // Data flow: the server sends {"type":"frames","records":[...]} over /ws; each record is one
-// stream's newest paired instant (raw, live and clean joints of every body, recovered flags,
-// latencies). onmessage only stores the newest record per stream and acknowledges it (the
-// server sends at most a couple of unacknowledged messages, so nothing queues); drawing
-// happens on requestAnimationFrame. window.sfStatus is the page's own account of what it drew
+// paired instant of a stream (raw, live and clean joints of every body, recovered flags,
+// latencies) the page has not had yet, at most a few per stream. onmessage acknowledges
+// (the server sends at most a couple of unacknowledged messages, so nothing queues), adds
+// every record to the rolling plots and to a short per-stream playout queue. The service
+// emits clean frames a window hop at a time; on requestAnimationFrame each stream's queue
+// is played at the records' sensor timing, so bursts are shown as smooth motion, and a
+// queue that lags more than MAX_LAG_S is skipped ahead (counted) rather than let grow. window.sfStatus is the page's own account of what it drew
 // (read by tests through the DevTools protocol, and reported to the server's /status).
 "use strict";
 
 const HISTORY_S = 10;                 // seconds shown in the rolling plots
+const MAX_LAG_S = 0.4;                // playout queue longer than this (sensor time): skip ahead
 const COLORS = { raw: "#f0a030", live: "#8fbc8f", clean: "#4c9be8", rec: "#ff4d4d" };
 
 const layouts = {};                   // stream -> {skeleton, joint_names, bones, rate_hz}
-const latest = {};                    // stream -> newest record
+const latest = {};                    // stream -> record on screen
+const playout = {};                   // stream -> {queue: [records], clock: sensor time (s) shown}
 const history = {};                   // "stream#body" -> {t:[], raw:[], clean:[], rawBone:[], cleanBone:[]}
 const latency = { t: [], live: [], clean: [], wire: [] };
 let dirty = false;
 let ws = null;
 
 const status = window.sfStatus = {
-  connected: false, messages: 0, records: 0, framesDrawn: 0, rafTicks: 0, renderFps: 0, drawMs: 0,
+  connected: false, messages: 0, records: 0, skipped: 0, framesDrawn: 0, rafTicks: 0, renderFps: 0, drawMs: 0, ageMs: null, maxAgeMs: 0,
   streams: 0, bodies: 0, expectedJoints: 0, jointsDrawn: { raw: 0, live: 0, clean: 0 }, recoveredDrawn: 0,
   lastSeq: {}, bridge: null, error: null,
 };
@@ -44,14 +49,13 @@ function connect() {
     status.bridge = msg.bridge;
     Object.assign(layouts, msg.layouts);
     for (const rec of msg.records) take(rec);
-    dirty = true;
   };
 }
 
 function take(rec) {
   status.records += 1;
-  latest[rec.stream] = rec;
-  status.lastSeq[rec.stream] = rec.seq;
+  const p = playout[rec.stream] || (playout[rec.stream] = { queue: [], clock: null });
+  p.queue.push(rec);
   const lay = layouts[rec.stream];
   const j = jointIndex(lay);
   const axis = +$("axis").value;
@@ -101,6 +105,30 @@ function jointIndex(lay) {
   return +sel.value;
 }
 function resetHistory() { for (const k in history) delete history[k]; }
+
+// Advance every stream's playout clock by the real time elapsed; show the newest due record.
+function play(dt) {
+  for (const s in playout) {
+    const p = playout[s], q = p.queue;
+    if (!q.length) continue;
+    const last = q[q.length - 1].t;
+    if (p.clock === null || p.clock < q[0].t - 1 || p.clock > last + 1) p.clock = q[0].t;  // start, or a jump
+    else p.clock = Math.min(p.clock + dt, last);  // never ahead of the data: a burst then plays smoothly
+    if (last - p.clock > MAX_LAG_S) {  // fallen behind: skip to near the newest
+      p.clock = last - MAX_LAG_S / 4;
+    }
+    let shown = null;
+    while (q.length && q[0].t <= p.clock + 1e-6) {
+      if (shown) status.skipped += 1;  // more than one due in this animation frame
+      shown = q.shift();
+    }
+    if (shown) {
+      latest[s] = shown;
+      status.lastSeq[s] = shown.seq;
+      dirty = true;
+    }
+  }
+}
 
 // ------------------------------------------------------------------ 3D scene
 function upAxis(rec) {
@@ -273,22 +301,31 @@ function drawPlots() {
 }
 
 // ------------------------------------------------------------------ render loop
-let fpsFrames = 0, fpsSince = performance.now(), lastReport = 0;
+let fpsFrames = 0, fpsSince = performance.now(), lastReport = 0, ageWindow = 0, lastTick = null;
 function frame(now) {
   status.rafTicks += 1;
   try {
+    play(lastTick === null ? 0 : Math.min(0.25, (now - lastTick) / 1000));
+    lastTick = now;
     if (dirty) {
       dirty = false;
       const t0 = performance.now();
       status.jointsDrawn = drawScene();
       drawPlots();
       status.drawMs = 0.9 * status.drawMs + 0.1 * (performance.now() - t0);  // smoothed cost of one draw
+      // age of the newest clean frame on screen: wall clock now minus the service's publish time
+      const pubs = Object.values(latest).map((r) => r.t_publish_ms).filter((v) => v);
+      if (pubs.length) {
+        status.ageMs = Math.round(Date.now() - Math.min(...pubs));
+        ageWindow = Math.max(ageWindow, status.ageMs);
+      }
       status.framesDrawn += 1;
       fpsFrames += 1;
     }
     if (now - fpsSince >= 1000) {
       status.renderFps = Math.round((1000 * fpsFrames) / (now - fpsSince));
       fpsFrames = 0; fpsSince = now;
+      status.maxAgeMs = ageWindow; ageWindow = 0;  // the oldest frame shown in the last second
       status.streams = Object.keys(latest).length;
       const br = status.bridge || {};
       $("stats").textContent = `streams ${status.streams} bodies ${status.bodies} drawn ${status.framesDrawn} ` +
