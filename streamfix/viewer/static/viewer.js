@@ -20,7 +20,7 @@ const latest = {};                    // stream -> record on screen
 const playout = {};                   // stream -> {queue: [records], clock: sensor time (s) shown}
 const history = {};                   // "stream#body" -> {t:[], raw:[], clean:[], rawBone:[], cleanBone:[]}
 const latency = { t: [], live: [], clean: [], wire: [] };
-let dirty = false;
+let dirty = true;  // draw once at start ("waiting for frames")
 let ws = null;
 
 const status = window.sfStatus = {
@@ -35,7 +35,7 @@ const camera = { yaw: 0, pitch: 0.2, dist: 2.6, target: null, up: null };
 // ------------------------------------------------------------------ connection
 function connect() {
   ws = new WebSocket(`ws://${location.host}/ws`);
-  ws.onopen = () => { status.connected = true; $("conn").textContent = "connected"; };
+  ws.onopen = () => { status.connected = true; $("conn").textContent = "connected"; dirty = true; };
   ws.onclose = () => {
     status.connected = false; $("conn").textContent = "disconnected, retrying...";
     setTimeout(connect, 1000);
@@ -177,11 +177,17 @@ function drawScene() {
     const c = [0, 1, 2].map((i) => pts.reduce((a, p) => a + p[i], 0) / pts.length);
     camera.target = camera.target ? camera.target.map((v, i) => v + 0.1 * (c[i] - v)) : c;
   }
-  if (!camera.target) return counts;
+  if (!camera.target) {
+    ctx.fillStyle = "#8a93a6"; ctx.font = "16px system-ui"; ctx.textAlign = "center";
+    ctx.fillText(status.connected ? "waiting for frames..." : "connecting to the viewer...", w / 2, h / 2);
+    ctx.textAlign = "left";
+    return counts;
+  }
   const view = { c: camera.target, w, h, f: 0.9 * Math.min(w, h), shift: 0 };
   drawGrid(ctx, view, pts);
   const layoutSide = $("layout").value === "side";
-  const kinds = ["raw", "live", "clean"].filter((k) => $("show" + k[0].toUpperCase() + k.slice(1)).checked);
+  // clean first and thick, raw and live over it thinner, so both stay visible when overlaid
+  const kinds = ["clean", "live", "raw"].filter((k) => $("show" + k[0].toUpperCase() + k.slice(1)).checked);
   for (const s of streams) {
     const rec = latest[s], lay = layouts[s];
     if (!lay) continue;
@@ -194,8 +200,8 @@ function drawScene() {
         view.shift = layoutSide ? (kind === "clean" ? -0.5 : 0.5) : 0;
         const P = joints.map((p) => (p ? project(toYUp(p, camera.up), view) : null));
         ctx.strokeStyle = COLORS[kind];
-        ctx.globalAlpha = kind === "clean" ? 1 : 0.8;
-        ctx.lineWidth = kind === "clean" ? 3 : 2;
+        ctx.globalAlpha = kind === "clean" ? 1 : 0.9;
+        ctx.lineWidth = kind === "clean" ? 4 : 1.5;
         ctx.beginPath();
         for (const [a, c] of lay.bones) {
           if (P[a] && P[c]) { ctx.moveTo(P[a][0], P[a][1]); ctx.lineTo(P[c][0], P[c][1]); }
@@ -206,7 +212,7 @@ function drawScene() {
           if (!P[j]) continue;
           counts[kind] += 1;
           const isRec = kind === "clean" && b.rec && b.rec[j];
-          const r = isRec ? 5 : 3;
+          const r = isRec ? 5 : kind === "clean" ? 3.5 : 2.5;
           ctx.beginPath(); ctx.arc(P[j][0], P[j][1], r, 0, 2 * Math.PI);
           if (isRec) { ctx.fillStyle = COLORS.rec; ctx.fill(); ctx.fillStyle = COLORS[kind]; recovered += 1; }
           else ctx.fill();
@@ -256,6 +262,7 @@ function drawPlot(id, title, ylabel, series) {
   if (!isFinite(tMax)) return;
   if (hi - lo < 1e-6) { hi += 0.5; lo -= 0.5; }
   const pad = 0.08 * (hi - lo); lo -= pad; hi += pad;
+  if (series.every((s) => s.nonNegative)) lo = Math.max(lo, 0);
   const X = (t) => m.l + (w - m.l - m.r) * (1 - (tMax - t) / HISTORY_S);
   const Y = (v) => m.t + (h - m.t - m.b) * (hi - v) / (hi - lo);
   ctx.fillStyle = "#8a93a6"; ctx.font = "11px system-ui";
@@ -294,9 +301,9 @@ function drawPlots() {
       [{ t: h.t, v: h.rawBone, color: COLORS.raw, label: "raw" }, { t: h.t, v: h.cleanBone, color: COLORS.clean, label: "clean" }]);
   }
   drawPlot("plotLat", "latency (ms): service delay live / clean, wire", "ms", [
-    { t: latency.t, v: latency.live, color: COLORS.live, label: "live" },
-    { t: latency.t, v: latency.clean, color: COLORS.clean, label: "clean" },
-    { t: latency.t, v: latency.wire, color: "#b48ead", label: "wire" },
+    { t: latency.t, v: latency.live, color: COLORS.live, label: "live", nonNegative: true },
+    { t: latency.t, v: latency.clean, color: COLORS.clean, label: "clean", nonNegative: true },
+    { t: latency.t, v: latency.wire, color: "#b48ead", label: "wire", nonNegative: true },
   ]);
 }
 
