@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import threading
 from importlib import resources
 from typing import Callable
@@ -71,8 +72,10 @@ class ViewerServer:
         self._clients: dict[int, dict] = {}
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
+        quiet = logging.getLogger("streamfix.viewer.websockets")
+        quiet.setLevel(logging.WARNING)  # not one INFO line per page load in `serve --view`'s log
         self._server = serve(self._handle, host, port, process_request=self._http, compression=None,
-                             ping_interval=None, max_size=2**20)
+                             ping_interval=None, max_size=2**20, logger=quiet)
         self.host, self.port = self._server.socket.getsockname()[:2]
         self._thread = threading.Thread(target=self._server.serve_forever, name="streamfix-view-http", daemon=True)
         self._thread.start()
