@@ -92,17 +92,21 @@ function parentOf(lay, j) {
   for (const [p, c] of lay.bones) if (p === j) return c;  // a root joint: its first child
   return -1;
 }
+// The joint select lists the plotted body's skeleton; other skeletons plot the joint of the same name.
+function fillJoints(lay) {
+  const sel = $("joint"), keep = sel.selectedOptions[0] ? sel.selectedOptions[0].text : null;
+  sel.innerHTML = lay.joint_names.map((n, i) => `<option value="${i}">${n}</option>`).join("");
+  let j = keep === null ? -1 : lay.joint_names.indexOf(keep);
+  if (j < 0) j = lay.joint_names.findIndex((n) => /hand.?right|rwrist|wristright|right.?hand/i.test(n));
+  sel.value = String(Math.max(j, 0));
+  sel.dataset.skeleton = lay.skeleton;
+}
 function jointIndex(lay) {
   if (!lay) return 0;
   const sel = $("joint");
-  const names = lay.joint_names;
-  if (sel.options.length !== names.length || sel.dataset.skeleton !== lay.skeleton) {
-    sel.innerHTML = names.map((n, i) => `<option value="${i}">${n}</option>`).join("");
-    const guess = names.findIndex((n) => /hand.?right|rwrist|wristright|right.?hand/i.test(n));
-    sel.value = String(guess >= 0 ? guess : 0);
-    sel.dataset.skeleton = lay.skeleton;
-  }
-  return +sel.value;
+  if (!sel.options.length) fillJoints(lay);
+  if (sel.dataset.skeleton === lay.skeleton) return +sel.value;
+  return Math.max(0, lay.joint_names.indexOf(sel.selectedOptions[0].text));
 }
 function resetHistory() { for (const k in history) delete history[k]; }
 
@@ -363,7 +367,12 @@ function controls() {
   cv.addEventListener("wheel", (e) => { e.preventDefault(); camera.dist = Math.max(0.5, camera.dist * Math.exp(0.001 * e.deltaY)); dirty = true; });
   cv.addEventListener("dblclick", () => { camera.yaw = 0; camera.pitch = 0.2; camera.dist = 2.6; camera.up = null; dirty = true; });
   for (const id of ["joint", "axis"]) $(id).addEventListener("change", () => { resetHistory(); dirty = true; });
-  for (const id of ["layout", "body", "showRaw", "showLive", "showClean"]) $(id).addEventListener("change", () => { dirty = true; });
+  $("body").addEventListener("change", () => {  // another body may have another skeleton
+    const lay = layouts[$("body").value.split("#")[0]];
+    if (lay && lay.skeleton !== $("joint").dataset.skeleton) { fillJoints(lay); resetHistory(); }
+    dirty = true;
+  });
+  for (const id of ["layout", "showRaw", "showLive", "showClean"]) $(id).addEventListener("change", () => { dirty = true; });
 }
 
 controls();
