@@ -100,7 +100,6 @@ class FrameBoard:
         self.layouts: dict[str, dict] = {}  # stream -> {"skeleton", "joint_names", "bones", "rate_hz"}
         self._streams: dict[str, _Stream] = {}
         self._cond = threading.Condition()
-        self._version = 0
 
     # ------------------------------------------------------------------ writers
     def set_layout(self, stream: str, skeleton: Skeleton, rate_hz: float | None = None) -> None:
@@ -135,12 +134,11 @@ class FrameBoard:
             self.counters["paired" if held.raw is not None else "unpaired"] += 1
             st.count += 1
             st.records.append((st.count, self._record(frame, held, recv)))
-            self._version += 1
             self._cond.notify_all()
 
     def _expire(self, st: _Stream, newest_t: int) -> None:
         while st.held:
-            t, _ = next(iter(st.held.items()))
+            t = next(iter(st.held))
             if newest_t - t <= self.hold_ns and len(st.held) <= _HELD_MAX:
                 break
             st.held.popitem(last=False)
