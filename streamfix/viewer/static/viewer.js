@@ -30,7 +30,7 @@ const status = window.sfStatus = {
 };
 
 const $ = (id) => document.getElementById(id);
-const camera = { yaw: 0, pitch: 0.2, dist: 2.6, target: null, up: null };
+const camera = { yaw: 0, pitch: 0.2, dist: 2.6, target: null, up: null, auto: true };  // auto: fit until zoomed
 
 // ------------------------------------------------------------------ connection
 function connect() {
@@ -180,6 +180,10 @@ function drawScene() {
   if (pts.length) {
     const c = [0, 1, 2].map((i) => pts.reduce((a, p) => a + p[i], 0) / pts.length);
     camera.target = camera.target ? camera.target.map((v, i) => v + 0.1 * (c[i] - v)) : c;
+    if (camera.auto) {  // frame every body: distance from the extent of what is drawn
+      const ext = Math.max(...[0, 1, 2].map((i) => Math.max(...pts.map((p) => p[i])) - Math.min(...pts.map((p) => p[i]))));
+      camera.dist += 0.1 * (Math.min(15, Math.max(1.5, 1.5 * ext)) - camera.dist);
+    }
   }
   if (!camera.target) {
     ctx.fillStyle = "#8a93a6"; ctx.font = "16px system-ui"; ctx.textAlign = "center";
@@ -364,8 +368,8 @@ function controls() {
     camera.pitch = Math.max(-1.5, Math.min(1.5, camera.pitch + 0.01 * (e.clientY - drag[1])));
     drag = [e.clientX, e.clientY]; dirty = true;
   });
-  cv.addEventListener("wheel", (e) => { e.preventDefault(); camera.dist = Math.max(0.5, camera.dist * Math.exp(0.001 * e.deltaY)); dirty = true; });
-  cv.addEventListener("dblclick", () => { camera.yaw = 0; camera.pitch = 0.2; camera.dist = 2.6; camera.up = null; dirty = true; });
+  cv.addEventListener("wheel", (e) => { e.preventDefault(); camera.auto = false; camera.dist = Math.max(0.5, camera.dist * Math.exp(0.001 * e.deltaY)); dirty = true; });
+  cv.addEventListener("dblclick", () => { camera.yaw = 0; camera.pitch = 0.2; camera.auto = true; camera.up = null; dirty = true; });
   for (const id of ["joint", "axis"]) $(id).addEventListener("change", () => { resetHistory(); dirty = true; });
   $("body").addEventListener("change", () => {  // another body may have another skeleton
     const lay = layouts[$("body").value.split("#")[0]];
