@@ -19,6 +19,8 @@ COMMANDS = {
     "record": "record",
     "tap": "tap",
     "train-prior": "train_prior",
+    "view": "view",      # streamfix/viewer (browser viewer)
+    "report": "report",  # streamfix/report (plotted reports)
 }
 
 

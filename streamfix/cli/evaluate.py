@@ -34,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="paired protocol: UI-PRMD repetitions to score (default trustworthy, see its README)")
     parser.add_argument("--limit", type=int, default=None, metavar="N",
                         help="paired protocol: at most N repetitions per dataset, spread over the list (quick runs)")
+    parser.add_argument("--report", default=None, metavar="DIR",
+                        help="also write DIR/<file>.html: plots of each file cleaned by the engine (streamfix report)")
 
 
 def _clean(value):
@@ -151,6 +153,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamfix eval: {exc}", file=sys.stderr)
         return 1
     records = [r for recs in by_protocol.values() for r in recs]
+    if args.report:  # plotted reports (streamfix/report), one per input file
+        try:
+            from ..report import write_file_reports
+
+            for path in write_file_reports(args.files, args.report, args.rate):
+                print(f"streamfix eval: wrote {path}", file=sys.stderr)
+        except (ModuleNotFoundError, OSError, ValueError) as exc:
+            print(f"streamfix eval: --report {args.report}: {exc}", file=sys.stderr)
+            return 1
     if args.json:
         json.dump(_clean(records), sys.stdout, indent=1)
         sys.stdout.write("\n")

@@ -56,6 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linger-ms", type=int, default=2000, help="on exit, wait this long for queued messages to leave")
     p.add_argument("--meta-interval", type=float, default=1.0, help="seconds between repeated skeleton messages")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
+    p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",
+                   help="also serve the browser viewer (streamfix view) on http://127.0.0.1:PORT (default 8765)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,4 +134,19 @@ def run(args: argparse.Namespace) -> int:
         else ""
     )
     log.info("ready: source %s, publishing on %s%s", source.describe(), publisher.endpoint, metrics)
-    return service.run()
+    viewer = None
+    if args.view is not None:  # --view: the browser viewer beside the service (streamfix/viewer)
+        from ..viewer import Viewer
+
+        try:
+            viewer = Viewer(publisher.endpoint, port=args.view, title=f"streamfix serve {source.describe()}")
+            log.info("viewer: open %s", viewer.url)
+        except OSError as exc:
+            service.close()
+            print(f"streamfix serve: --view: cannot serve the viewer on port {args.view}: {exc}", file=sys.stderr)
+            return 2
+    try:
+        return service.run()
+    finally:
+        if viewer is not None:
+            viewer.close()
