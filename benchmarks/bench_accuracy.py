@@ -8,7 +8,10 @@ Runs, with fixed seeds:
 * gap protocol at 30 Hz (gap_mae below linear and spline at 10 and 20 %);
 * every Kinect v2 file (jitter cut >= median_savgol's, bone-length CV cut >= yang's).
 
-Usage: ``python benchmarks/bench_accuracy.py [--seed N] [--json OUT]``.
+Usage: ``python benchmarks/bench_accuracy.py [--seed N] [--json OUT]``. Writes
+``benchmarks/results/accuracy.json`` (every record) and ``accuracy.md`` (what it printed).
+``streamfix`` is the engine's clean output (what users get); ``streamfix_whole`` the
+whole-take function, printed beside it.
 """
 from __future__ import annotations
 
@@ -34,10 +37,35 @@ TABLE_II = {5: 0.004, 10: 0.006, 15: 0.007, 20: 0.010, 80: 0.040}
 BASELINES = ["input", "yang", "li", "wang", "one_euro", "holt", "savgol", "median_savgol", "linear", "spline"]
 
 
+class _Tee:
+    """Print to the terminal and keep a copy for the results file."""
+
+    def __init__(self, stream) -> None:
+        self.stream, self.lines = stream, []
+
+    def write(self, text: str) -> int:
+        self.lines.append(text)
+        return self.stream.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
 def main() -> int:
+    tee = _Tee(sys.stdout)
+    sys.stdout = tee
+    try:
+        return _main(tee)
+    finally:
+        sys.stdout = tee.stream
+
+
+def _main(tee: _Tee) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--json", default=None, help="also write all records to this file")
+    ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "accuracy.json"),
+                    help="write all records to this file (default benchmarks/results/accuracy.json); "
+                         "what is printed goes beside it as .md")
     args = ap.parse_args()
     cmu = [str(DATA / "cmu_bvh" / f"{n}.bvh") for n in ("131_01", "131_02")]
     kinect = sorted(str(p) for p in (DATA / "kinect_v2").glob("*.csv"))
@@ -98,10 +126,13 @@ def main() -> int:
         print(f"  {Path(f).name:<26} jitter after/before {sf['jitter_ratio']:.3f} (median_savgol "
               f"{ms['jitter_ratio']:.3f})  bone CV after/before {sf['bone_cv_ratio']:.3f} (yang {ya['bone_cv_ratio']:.3f})")
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(recs, indent=1, default=float))
     print(f"\n{checks - len(misses)}/{checks} bars held ({elapsed:.0f} s)")
     for m in misses:
         print(f"MISSED: {m}")
+    if args.json:
+        Path(args.json).with_suffix(".md").write_text("# bench_accuracy\n\n```\n" + "".join(tee.lines) + "```\n")
     return 1 if misses else 0
 
 

@@ -62,25 +62,11 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    worse on some files), 50 iterations reach 0.000-0.003 and lower AJE and ABE on
    every CMU/Xia case tried.
 
-Measured (``benchmarks/bench_accuracy.py``, seed 0; AJE in m, CMU 131_01 / 131_02):
-
-=========  ================  ===============  ===============  ===============
-level      120 Hz streamfix  30 Hz streamfix  30 Hz yang       30 Hz med+SG
-=========  ================  ===============  ===============  ===============
-5 %        0.0001 / 0.0001   0.0005 / 0.0006  0.0033 / 0.0030  0.0063 / 0.0050
-20 %       0.0003 / 0.0003   0.0040 / 0.0027  0.0127 / 0.0090  0.0159 / 0.0109
-80 %       0.0191 / 0.0145   0.0643 / 0.0538  0.177 / 0.165    0.0969 / 0.0944
-=========  ================  ===============  ===============  ===============
-
-Gaps at 30 Hz, gap MAE 10 % / 20 %: 0.037 / 0.031 and 0.017 / 0.024 m (linear
-0.17 / 0.21 and 0.06 / 0.10 m; spline 0.15 / 0.16 and 0.07 / 0.16 m). Kinect v2
-files: jitter after/before 0.18-0.22 (median_savgol 0.23-0.26), bone-length CV
-after/before 0.000-0.003 (yang 0.44-0.61). On the six Xia takes (not a bar) streamfix
-is below median_savgol at 5/20/80 % at both rates; its thinnest margin is 80 % at
-30 Hz on the short (27-48 frames), fast takes (0.089-0.100 m vs 0.098-0.105 m).
-On C3D markers (no bones; rigid pairs estimated) 85_02 at 80 %: 0.090 vs 0.100 m
-at 30 Hz but 0.052 vs 0.043 m at 120 Hz: skin markers are not rigid enough to rank
-candidates sharply.
+How well it does, against what, is measured by the benchmarks and written to
+``benchmarks/results/`` (``accuracy.md`` for the paper's protocols, ``paired.md`` against
+Vicon, ``sensor.md`` for realistic sensor errors); numbers are not copied here, where they
+would go stale. In the product this function runs per window inside the streaming engine
+(:mod:`streamfix.streaming.engine`), which is what ``streamfix clean`` and ``serve`` output.
 
 Arrays: positions ``(T, J, 3)`` metres (NaN = missing), confidence ``(T, J)`` in [0, 1].
 """

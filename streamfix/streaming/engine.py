@@ -16,8 +16,9 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
   warm-started from the previous window's solver state shifted by the hop
   (``state.shifted(e_k - e_{k-1})``) when both windows have the full length ``W``;
 * the solution of window ``k`` is blended into every not-yet-emitted frame it covers
-  with the Hann taper ``w_i = 1e-3 + sin^2(pi (i + 1/2) / T)`` (``i`` the frame's
-  position in the window, ``T`` its length), normalised per frame: the clean value of
+  with a weight that depends on how many of the window's frames lie after the frame
+  (:func:`handover_weights`: a short crossfade at each hand-over, so a window's arrival
+  does not step the output), normalised per frame: the clean value of
   frame ``n`` is ``sum_k w_k x_k / sum_k w_k`` over the windows ``k`` with
   ``n < e_k <= n + L + 1``, i.e. exactly the windows that have been solved when frame
   ``n + L`` arrives (there is at least one because ``H <= L + 1``). The weights
@@ -34,10 +35,9 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
 Each window's first ``W - L - 1`` frames are context only (already emitted); a frame's
 value comes from windows that saw between ``L + 1 - H`` and ``L`` frames of its future.
 Defaults (seconds, converted at ``rate_hz``): W 2 s, H 1/3 s, L 0.5 s = 60/10/15 frames
-at 30 Hz. Measured with the default window solver on CMU 131_01/131_02 at 30 Hz with
-10 / 20 % of entries corrupted by U(+-25 cm): clean AJE 0.9-1.2x that of cleaning the
-whole sequence at once (H 12: up to 1.35x; the frames with the least future context,
-``L + 1 - H``, sit inside the solver's edge effects). Compute is one window solve per
+at 30 Hz. The frames with the least future context (``L + 1 - H``) sit inside the
+solver's edge effects, so a longer hop costs accuracy (``tests/test_e2e_quality.py``
+holds the clean output within 1.25x of the whole-take solve). Compute is one window solve per
 body per ``H`` frames, so bodies per core scale with ``H / W`` and the window solver's
 cost: ``benchmarks/bench_streaming.py`` measures it against a Savitzky-Golay window.
 
