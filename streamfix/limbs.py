@@ -16,7 +16,7 @@ import numpy as np
 
 from .skeletons import Skeleton
 
-__all__ = ["LimbLayout", "limb_layout", "mirror_index", "mirror_bones"]
+__all__ = ["LimbLayout", "limb_layout", "mirror_index", "mirror_bones", "limb_groups"]
 
 # candidate names per part, normalised (lower case, no '_', ' ', '.'); "{s}" = side word
 _PARTS: dict[str, tuple[str, ...]] = {
@@ -73,6 +73,38 @@ def mirror_index(skeleton: Skeleton) -> np.ndarray:
     """``(J,)`` index of each joint's left/right mirror image (itself where there is none)."""
     index = {n: i for i, n in enumerate(skeleton.joint_names)}
     return np.array([index.get(_swap_side(n), i) for i, n in enumerate(skeleton.joint_names)], dtype=np.intp)
+
+
+def limb_groups(skeleton: Skeleton) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Mirror pairs of whole limbs: ``[(left joints, their mirror images), ...]``.
+
+    A limb is the set of sided joints hanging from one sided joint whose parent is on
+    the midline (Kinect v2: ShoulderLeft..HandTipLeft/ThumbLeft, HipLeft..FootLeft); the
+    second array holds each joint's mirror, in the same order. Layouts without a tree
+    (no parent for some joint) or without mirrors give no groups.
+    """
+    m = mirror_index(skeleton)
+    n = len(skeleton.joint_names)
+    parent = np.full(n, -1)
+    for a, b in skeleton.bones:
+        parent[b] = a
+    sided = m != np.arange(n)
+    root = np.full(n, -1)
+    for j in range(n):  # walk up to the topmost sided ancestor (a few steps per joint)
+        if not sided[j]:
+            continue
+        r, k = j, parent[j]
+        while k >= 0 and sided[k]:
+            r, k = k, parent[k]
+        root[j] = r
+    groups = []
+    for r in np.unique(root[root >= 0]):
+        if r < m[r]:  # each pair once, from its lower-indexed side
+            a = np.flatnonzero(root == r)
+            b = m[a]
+            if (root[b] == m[r]).all():
+                groups.append((a.astype(np.intp), b.astype(np.intp)))
+    return groups
 
 
 def mirror_bones(skeleton: Skeleton) -> np.ndarray:

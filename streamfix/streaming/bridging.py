@@ -174,6 +174,7 @@ class BridgingWindowSolver:
         context_windows: float = 1.0,
         excursion_gain: float | None = EXCURSION_GAIN,
         foot_support: bool = True,
+        undo_swaps: bool = True,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -186,6 +187,7 @@ class BridgingWindowSolver:
             raise ValueError(f"prior_init must be 'off', 'bridged' or 'always', got {prior_init!r}")
         self.prior_init = prior_init
         self.foot_support = bool(foot_support)
+        self.undo_swaps = bool(undo_swaps)
         self.context_windows = float(context_windows)
         self.excursion_gain = None if excursion_gain is None else float(excursion_gain)
         self.base = base
@@ -353,6 +355,14 @@ class BridgingWindowSolver:
         conf = finite.astype(np.float64) if confidence is None else np.where(finite, confidence, 0.0)
         obs = conf > 0
         planted = None
+        if self.undo_swaps and skeleton is not None:
+            # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
+            from .swaps import unswap_window
+
+            x, swapped = unswap_window(x, obs, skeleton, rate_hz, history)
+            if swapped.any():
+                positions = x
+                planted = swapped
         if self.foot_support and skeleton is not None:
             # legs the sensor folded up while a foot must be on the floor (streaming/support.py);
             # undone before the window pipeline, which then smooths the fix with everything else
@@ -360,7 +370,7 @@ class BridgingWindowSolver:
 
             x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history, trusted=conf >= 1.0)
             if weight.any():
-                planted = weight > 0.5
+                planted = (weight > 0.5) if planted is None else (planted | (weight > 0.5))
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
                 positions, confidence = x, conf
         res = self._solve(x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history)
