@@ -101,6 +101,12 @@ class Counter(_Family):
         with self._lock:
             return self._values.get(self._key(labels), 0.0)
 
+    def remove(self, **labels: str) -> None:
+        """Forget one label set (a reclaimed stream), so label sets stay bounded."""
+        key = self._key(labels)
+        with self._lock:
+            self._values.pop(key, None)
+
     def values(self) -> dict[tuple[str, ...], float]:
         with self._lock:
             return dict(self._values)
