@@ -19,6 +19,7 @@ COMMANDS = {
     "record": "record",
     "tap": "tap",
     "train-prior": "train_prior",
+    "keys": "keys",
 }
 
 
