@@ -73,6 +73,21 @@ _STREAM_RE = re.compile(r"^[A-Za-z0-9_.:\-]{1,64}$")
 _F32 = np.dtype("<f4")
 _MAX_JOINTS = 1024
 _MAX_BODIES = 64
+_MAX_MAP_LEN = 256       # keys in any map (a frame has 10, a body 4; room for unknown keys)
+_MAX_ARRAY_LEN = 4 * _MAX_JOINTS  # joint names, bones (a skeleton of 1024 joints), bodies
+
+
+def _head_type(head: int) -> str:
+    """What a msgpack value starting with byte ``head`` is (for error messages)."""
+    if head <= 0x7F or head >= 0xE0 or 0xCC <= head <= 0xD3:
+        return "an integer"
+    if 0x90 <= head <= 0x9F or head in (0xDC, 0xDD):
+        return "an array"
+    if 0xA0 <= head <= 0xBF or 0xD9 <= head <= 0xDB:
+        return "a string"
+    names = {0xC0: "nil", 0xC2: "a boolean", 0xC3: "a boolean", 0xC4: "a binary blob", 0xC5: "a binary blob",
+             0xC6: "a binary blob", 0xCA: "a float", 0xCB: "a float"}
+    return names.get(head, "no valid msgpack value" if head == 0xC1 else "an extension type (not allowed)")
 
 
 class WireError(ValueError):
@@ -253,8 +268,14 @@ def encode_skeleton_message(
 def _unpack(payload: bytes) -> dict:
     if not payload:
         raise WireError("payload is empty, expected a msgpack map", "garbage")
+    head = payload[0]
+    if not (0x80 <= head <= 0x8F or head in (0xDE, 0xDF)):  # decide before decoding a possible bomb
+        raise WireError(f"payload is not a msgpack map: its first byte 0x{head:02x} starts {_head_type(head)}",
+                        "garbage")
     try:
-        msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        # bounded containers: no valid message needs more, and a bomb fails at its first header
+        msg = msgpack.unpackb(payload, raw=False, strict_map_key=False, max_map_len=_MAX_MAP_LEN,
+                              max_array_len=_MAX_ARRAY_LEN)
     except msgpack.ExtraData as exc:
         raise WireError(
             f"payload of {len(payload)} bytes is not one msgpack map: a msgpack "
