@@ -185,3 +185,39 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
         good = [f for f in frames("good", kind) if not f.filled]
         assert [f.sensor_time_ns for f in good] == [int(round(motion.timestamps[i] * 1e9)) for i in range(n_good)]
     assert m['streamfix_stream_failures_total{stage="engine"}'] == 0
+
+
+def test_sigterm_under_overload_flushes_in_bounded_time_and_counts_what_it_dropped(tmp_path, shared_data):
+    """A backlog of frames at SIGTERM: handled for at most --drain-timeout, the rest counted and logged;
+    every frame sent is either published on live or in the shutdown count."""
+    motion = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
+    n = 1500
+    with serve(tmp_path, "--overload", "block", "--backlog-frames", "5000", "--drain-timeout", "0.3",
+               "--flush-timeout", "2", "--sndhwm", "0", "--idle-timeout", "0") as sp:
+        sub = connected_subscriber(sp.out, (b"sf/live/",))
+        push = zmq.Context.instance().socket(zmq.PUSH)
+        push.setsockopt(zmq.LINGER, 0)
+        live = []
+        try:
+            connect_and_wait(push, sp.source)
+            for k in range(n):  # 6 bodies at ~30x real time: far more than the service handles
+                bodies = [_body(motion, k + 11 * b, b, 0.8 * b) for b in range(6)]
+                push.send_multipart([topic_for("raw", "busy"), _frame("busy", k, k * PERIOD_NS, bodies)])
+            time.sleep(1.0)
+            assert sp.proc.poll() is None
+            t0 = time.monotonic()
+            rc = sp.terminate(timeout=30)
+            took = time.monotonic() - t0
+            for r in sub.receive(timeout_s=2.0):
+                live.append(r.message)
+        finally:
+            push.close(linger=0)
+            sub.close()
+    assert rc == 0, sp.stderr[-2000:]
+    assert took < 8, f"shutdown took {took:.1f} s (drain 0.3 s + flush 2 s + margin)"
+    lines = [ln for ln in sp.stderr.splitlines() if "shutdown:" in ln and "not processed" in ln]
+    assert len(lines) == 1, sp.stderr[-2000:]
+    dropped = int(lines[0].split("shutdown: ")[1].split()[0])
+    delivered = sum(not f.filled for f in live)
+    assert dropped > 0 and delivered > 0
+    assert delivered + dropped == n, (delivered, dropped)

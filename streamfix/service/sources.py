@@ -335,13 +335,28 @@ class ZmqSource:
         return self.backlog.depth()
 
     def drop_pending(self) -> list[Item]:
-        """Give up on what still waits (shutdown): one :class:`Shed` per stream."""
-        return [Shed(stream, n, "shutdown") for stream, n in self.backlog.drop_all().items()]
+        """Give up on what still waits (shutdown): stop receiving, then count what the backlog
+        and the socket's queue still hold, one :class:`Shed` per stream."""
+        self._running = False
+        self.backlog.close()
+        self._thread.join(timeout=1.0)
+        counts = Counter(self.backlog.drop_all())
+        zmq = self._zmq
+        try:
+            while True:
+                parts = self.sock.recv_multipart(zmq.NOBLOCK)
+                stream, meta = Backlog._stream_of(parts)
+                if not meta:
+                    counts[stream] += 1
+        except zmq.ZMQError:  # Again: the queue is empty
+            pass
+        return [Shed(stream, n, "shutdown") for stream, n in counts.items()]
 
     def close(self) -> None:
         self._running = False
         self.backlog.close()
-        self._thread.join(timeout=1.0)
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
         self.sock.close(linger=0)
 
 
