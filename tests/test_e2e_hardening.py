@@ -221,3 +221,44 @@ def test_sigterm_under_overload_flushes_in_bounded_time_and_counts_what_it_dropp
     delivered = sum(not f.filled for f in live)
     assert dropped > 0 and delivered > 0
     assert delivered + dropped == n, (delivered, dropped)
+
+
+def test_overload_is_shed_counted_and_announced_so_live_stays_current(tmp_path, shared_data):
+    """Default policy: frames beyond the backlog bound are shed, counted by the service and announced
+    as ``dropped`` on the next live frame; live latency from arrival stays bounded."""
+    motion = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
+    n = 1500
+    with serve(tmp_path, "--overload", "shed", "--sndhwm", "0", "--idle-timeout", "0") as sp:
+        sub = connected_subscriber(sp.out, (b"sf/live/",))
+        push = zmq.Context.instance().socket(zmq.PUSH)
+        push.setsockopt(zmq.LINGER, 0)
+        live = []
+        try:
+            connect_and_wait(push, sp.source)
+            t0 = time.monotonic()
+            for k in range(n):  # 6 bodies at 10x real time
+                bodies = [_body(motion, k + 11 * b, b, 0.8 * b) for b in range(6)]
+                push.send_multipart([topic_for("raw", "hot"), _frame("hot", k, k * PERIOD_NS, bodies)])
+                time.sleep(max(0.0, t0 + (k + 1) / 300 - time.monotonic()))
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline:
+                m = sp.metrics()
+                if m["streamfix_input_backlog_frames"] == 0 and m['streamfix_frames_in_total{stream="hot"}'] + \
+                        m['streamfix_shed_frames_total{reason="backlog"}'] >= n:
+                    break
+                time.sleep(0.2)
+            for r in sub.receive(timeout_s=1.0):
+                live.append(r.message)
+        finally:
+            push.close(linger=0)
+            sub.close()
+    handled = m['streamfix_frames_in_total{stream="hot"}']
+    shed = m['streamfix_shed_frames_total{reason="backlog"}']
+    assert shed > 0 and handled + shed == n, (handled, shed)
+    delivered = sum(not f.filled for f in live)
+    announced = sum(f.dropped for f in live)
+    assert delivered == handled and 0 < announced <= shed
+    assert not any(f.filled for f in live), "shed frames are not synthesised again"
+    assert [f.seq for f in live] == list(range(len(live)))
+    le = m['streamfix_live_latency_seconds_bucket{le="0.5"}'] / m["streamfix_live_latency_seconds_count"]
+    assert le >= 0.99, f"live latency from arrival under 0.5 s for {le:.1%} of frames"
