@@ -13,6 +13,7 @@ recording) must come through exactly, with RSS and threads bounded.
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 
 import msgpack
 import numpy as np
@@ -47,6 +48,32 @@ def _body(motion, i: int, bid: int = 0, dx: float = 0.0) -> BodyFrame:
     p = motion.positions[i % motion.n_frames].copy()
     p[:, 0] += dx
     return BodyFrame(bid, p, motion.confidence[i % motion.n_frames].copy())
+
+
+def _flood(push: zmq.Socket, motion, stream: str, n: int, per_s: float | None = None) -> None:
+    """Send ``n`` frames of 6 bodies on ``stream`` (30 Hz sensor clock), ``per_s`` a second or at once."""
+    t0 = time.monotonic()
+    for k in range(n):
+        bodies = [_body(motion, k + 11 * b, b, 0.8 * b) for b in range(6)]
+        push.send_multipart([topic_for("raw", stream), _frame(stream, k, k * PERIOD_NS, bodies)])
+        if per_s is not None:
+            time.sleep(max(0.0, t0 + (k + 1) / per_s - time.monotonic()))
+
+
+@contextmanager
+def _flooded(tmp_path, motion, stream: str, n: int, per_s: float | None, *serve_args: str):
+    """A serve (unbounded PUB queue, no idle flush) that was sent ``n`` frames; yields it and a live SUB."""
+    with serve(tmp_path, "--sndhwm", "0", "--idle-timeout", "0", *serve_args) as sp:
+        sub = connected_subscriber(sp.out, (b"sf/live/",))
+        push = zmq.Context.instance().socket(zmq.PUSH)
+        push.setsockopt(zmq.LINGER, 0)
+        try:
+            connect_and_wait(push, sp.source)
+            _flood(push, motion, stream, n, per_s)
+            yield sp, sub
+        finally:
+            push.close(linger=0)
+            sub.close()
 
 
 def _wait_metric(sp, key: str, at_least: float, timeout: float = 30.0) -> dict:
@@ -192,27 +219,15 @@ def test_sigterm_under_overload_flushes_in_bounded_time_and_counts_what_it_dropp
     every frame sent is either published on live or in the shutdown count."""
     motion = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
     n = 1500
-    with serve(tmp_path, "--overload", "block", "--backlog-frames", "5000", "--drain-timeout", "0.3",
-               "--flush-timeout", "2", "--sndhwm", "0", "--idle-timeout", "0") as sp:
-        sub = connected_subscriber(sp.out, (b"sf/live/",))
-        push = zmq.Context.instance().socket(zmq.PUSH)
-        push.setsockopt(zmq.LINGER, 0)
-        live = []
-        try:
-            connect_and_wait(push, sp.source)
-            for k in range(n):  # 6 bodies at ~30x real time: far more than the service handles
-                bodies = [_body(motion, k + 11 * b, b, 0.8 * b) for b in range(6)]
-                push.send_multipart([topic_for("raw", "busy"), _frame("busy", k, k * PERIOD_NS, bodies)])
-            time.sleep(1.0)
-            assert sp.proc.poll() is None
-            t0 = time.monotonic()
-            rc = sp.terminate(timeout=30)
-            took = time.monotonic() - t0
-            for r in sub.receive(timeout_s=2.0):
-                live.append(r.message)
-        finally:
-            push.close(linger=0)
-            sub.close()
+    live = []
+    with _flooded(tmp_path, motion, "busy", n, None, "--overload", "block", "--backlog-frames", "5000",
+                  "--drain-timeout", "0.3", "--flush-timeout", "2") as (sp, sub):
+        time.sleep(1.0)  # 6 bodies sent as fast as possible: far more than the service handles
+        assert sp.proc.poll() is None
+        t0 = time.monotonic()
+        rc = sp.terminate(timeout=30)
+        took = time.monotonic() - t0
+        live.extend(r.message for r in sub.receive(timeout_s=2.0))
     assert rc == 0, sp.stderr[-2000:]
     assert took < 8, f"shutdown took {took:.1f} s (drain 0.3 s + flush 2 s + margin)"
     lines = [ln for ln in sp.stderr.splitlines() if "shutdown:" in ln and "not processed" in ln]
@@ -228,30 +243,16 @@ def test_overload_is_shed_counted_and_announced_so_live_stays_current(tmp_path, 
     as ``dropped`` on the next live frame; live latency from arrival stays bounded."""
     motion = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
     n = 1500
-    with serve(tmp_path, "--overload", "shed", "--sndhwm", "0", "--idle-timeout", "0") as sp:
-        sub = connected_subscriber(sp.out, (b"sf/live/",))
-        push = zmq.Context.instance().socket(zmq.PUSH)
-        push.setsockopt(zmq.LINGER, 0)
-        live = []
-        try:
-            connect_and_wait(push, sp.source)
-            t0 = time.monotonic()
-            for k in range(n):  # 6 bodies at 10x real time
-                bodies = [_body(motion, k + 11 * b, b, 0.8 * b) for b in range(6)]
-                push.send_multipart([topic_for("raw", "hot"), _frame("hot", k, k * PERIOD_NS, bodies)])
-                time.sleep(max(0.0, t0 + (k + 1) / 300 - time.monotonic()))
-            deadline = time.monotonic() + 10
-            while time.monotonic() < deadline:
-                m = sp.metrics()
-                if m["streamfix_input_backlog_frames"] == 0 and m['streamfix_frames_in_total{stream="hot"}'] + \
-                        m['streamfix_shed_frames_total{reason="backlog"}'] >= n:
-                    break
-                time.sleep(0.2)
-            for r in sub.receive(timeout_s=1.0):
-                live.append(r.message)
-        finally:
-            push.close(linger=0)
-            sub.close()
+    live = []
+    with _flooded(tmp_path, motion, "hot", n, 300.0, "--overload", "shed") as (sp, sub):  # 6 bodies, 10x
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            m = sp.metrics()
+            if m["streamfix_input_backlog_frames"] == 0 and m['streamfix_frames_in_total{stream="hot"}'] + \
+                    m['streamfix_shed_frames_total{reason="backlog"}'] >= n:
+                break
+            time.sleep(0.2)
+        live.extend(r.message for r in sub.receive(timeout_s=1.0))
     handled = m['streamfix_frames_in_total{stream="hot"}']
     shed = m['streamfix_shed_frames_total{reason="backlog"}']
     assert shed > 0 and handled + shed == n, (handled, shed)
