@@ -12,8 +12,11 @@
     the sender or the service starts first. Each message is either ``[topic,
     payload]`` (as published on ``sf/raw/<stream>``) or just ``[payload]``; the
     payload is a wire ``frame`` message or a ``skeleton`` message (which announces a
-    skeleton that is not in the registry, e.g. one read from a BVH file). Several
-    senders may connect at once; ZeroMQ fair-queues them.
+    skeleton that is not in the registry, e.g. one read from a BVH file, for the
+    announcing stream only). Several senders may connect at once; ZeroMQ fair-queues
+    them. A receiver thread stamps each message's arrival and keeps it in a bounded
+    :class:`Backlog` (overload policy ``shed`` or ``block``); with CURVE
+    (:mod:`streamfix.transport.curve`) only producers holding an allowed key connect.
 ``stdin``
     Kinect v2 CSV or JSON lines, one frame per line (see
     :mod:`streamfix.service.textin`). The stream ends at end of file.
@@ -23,8 +26,10 @@
     looped; see :mod:`streamfix.service.playback`.
 
 Every source offers ``poll(timeout_s) -> list[Item]`` (returns at most after
-``timeout_s``; items are :class:`Frame`, :class:`Announce` or :class:`Rejected`),
-``exhausted`` (no more input will come) and ``close()``. Sources never raise on bad
+``timeout_s``; items are :class:`Frame`, :class:`Announce`, :class:`Rejected`,
+:class:`Limited` or :class:`Shed`), ``exhausted`` (no more input will come) and
+``close()``; the ZeroMQ source also ``pending()`` (backlog depth and age) and
+``drop_pending()`` (shutdown: count what is left). Sources never raise on bad
 input: a bad message becomes a :class:`Rejected` item carrying the reason, so the
 service counts it and carries on.
 """
