@@ -17,7 +17,6 @@ import random
 import time
 
 import msgpack
-import numpy as np
 import zmq
 
 from streamfix.frames import BodyFrame, SkeletonFrame

@@ -21,8 +21,9 @@ import zmq
 from streamfix.cli import main
 from streamfix.service.metrics import MetricsServer, Registry
 from streamfix.skeletons import KINECT_V2
-from streamfix.transport.curve import is_loopback_endpoint
+from streamfix.transport.curve import CurveClient, is_loopback_endpoint
 from streamfix.transport.wire import encode_skeleton_message, topic_for
+from streamfix.transport.zmq_io import Subscriber
 
 from test_e2e_harness import PROJECT_ROOT, child_env, free_port, run_replay, serve
 
@@ -42,7 +43,7 @@ def test_curve_only_allowed_clients_receive_or_inject(tmp_path, shared_data):
     (allowed / "good.key").write_bytes((keys / "good.key").read_bytes())
     assert _cli("keys", str(keys)).returncode == 1, "existing keys are never overwritten"
     client = ("--curve-secret", str(keys / "good.key_secret"), "--curve-server", str(keys / "server.key"))
-    rogue = ("--curve-secret", str(keys / "rogue.key_secret"), "--curve-server", str(keys / "server.key"))
+    rogue = ("--curve-secret", str(keys / "rogue.key_secret"), "--curve-server", str(keys / "server.key"))  # not allowed
     path = shared_data / "kinect_v2" / "Ges01_wavehand.csv"
     with serve(tmp_path, "--curve-secret", str(keys / "server.key_secret"), "--curve-clients", str(allowed),
                "--engine", "passthrough") as sp:
@@ -58,10 +59,8 @@ def test_curve_only_allowed_clients_receive_or_inject(tmp_path, shared_data):
             tap = subprocess.Popen([sys.executable, "-m", "streamfix", "tap", sp.out, "--json", "--count", "20",
                                     "--timeout", "60", *client], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                    text=True, env=child_env(), cwd=str(PROJECT_ROOT))
-            rogue_tap = subprocess.Popen([sys.executable, "-m", "streamfix", "tap", sp.out, "--count", "1",
-                                          "--timeout", "8", *rogue], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                         text=True, env=child_env(), cwd=str(PROJECT_ROOT))
-            time.sleep(3.0)  # both taps connect (or fail to)
+            rogue_sub = Subscriber(sp.out, (b"sf/",), curve=CurveClient(keys / "rogue.key_secret", keys / "server.key"))
+            time.sleep(3.0)  # the taps connect (or fail to)
             try:  # an unauthenticated producer: its messages never reach the service
                 plain_push.send_multipart([topic_for("meta", "intruder"),
                                            encode_skeleton_message(KINECT_V2, 30.0, "intruder")])
@@ -72,7 +71,8 @@ def test_curve_only_allowed_clients_receive_or_inject(tmp_path, shared_data):
             bad = run_replay(path, sp.source, "--rate", "0", "--stream-id", "rogue", "--timeout", "2", *rogue)
             assert bad.returncode == 1 and "no receiver" in bad.stderr, bad.stderr
             out, err = tap.communicate(timeout=60)
-            rogue_out, _ = rogue_tap.communicate(timeout=30)
+            rogue_got = list(rogue_sub.receive(timeout_s=0.5))
+            rogue_sub.close()
             time.sleep(0.5)
             m = sp.metrics()
             assert plain_sub.poll(100) == 0, "a subscriber without a key receives nothing"
@@ -81,7 +81,7 @@ def test_curve_only_allowed_clients_receive_or_inject(tmp_path, shared_data):
             plain_push.close(linger=0)
     lines = [json.loads(x) for x in out.splitlines()]
     assert tap.returncode == 0 and len(lines) == 20 and {x["stream"] for x in lines} == {"curve"}, err
-    assert rogue_tap.returncode == 2 and rogue_out == "", "a key not in the allowed directory gets nothing"
+    assert rogue_got == [] and rogue_sub.counters["received"] == 0, "a key not in the allowed directory gets nothing"
     assert m.get('streamfix_frames_in_total{stream="curve"}') == 154
     assert 'streamfix_frames_in_total{stream="rogue"}' not in m and 'streamfix_frames_in_total{stream="intruder"}' not in m
 
