@@ -117,6 +117,8 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
             send(topic_for("meta", "arm"), encode_skeleton_message(arm, 30.0, "arm"))
             arm_frame = SkeletonFrame("other", 0, 0, "arm3", [BodyFrame(0, np.zeros((3, 3)), np.ones(3))])
             send(topic_for("raw", "other"), encode_frame(arm_frame))  # arm3 is not announced for "other"
+            arm_frame.stream_id = "arm"
+            send(topic_for("raw", "arm"), encode_frame(arm_frame))  # ... but it is for "arm"
             # 4. a msgpack bomb: 300 kB of empty arrays (over the message size limit)
             send(topic_for("raw", "bomb"), msgpack.packb([[]] * 300_000))
             # 5. 64 bodies in a frame, then 16 new body ids per frame
@@ -179,7 +181,7 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
     # 3. kinect_v2 cannot be redefined; arm3 is known only to the stream that announced it
     assert m['streamfix_limit_hits_total{limit="builtin_skeleton"}'] == 1
     assert m['streamfix_malformed_total{reason="unknown_skeleton"}'] >= 1
-    assert frames("other") == []
+    assert frames("other") == [] and len(frames("arm")) == 1 and frames("arm")[0].skeleton == "arm3"
     # 4. the bomb never reached the decoder
     assert m['streamfix_limit_hits_total{limit="message_size"}'] >= 1
     # 5. bodies bounded: 64 in a frame refused, churned ids beyond 16 tracked refused

@@ -95,3 +95,16 @@ def test_far_coordinates_become_missing_and_rates_are_bounded():
     assert set(LIMITS) >= {"message_size", "streams", "bodies_stream", "rate", "coordinate", "builtin_skeleton"}
     with pytest.raises(ValueError, match="must be > 0"):
         Limits(max_streams=0)
+
+
+def test_the_service_decodes_and_validates_with_one_scope_even_while_it_is_empty():
+    from streamfix.service.server import Service
+    from streamfix.service.sources import ZmqSource
+
+    source = ZmqSource("tcp://127.0.0.1:0")
+    try:
+        assert len(source.scope) == 0
+        svc = Service(source, publisher=None, make_engine=None, status_interval_s=0)
+        assert svc.scope is source.scope, "a layout the source learns must be the one the service validates with"
+    finally:
+        source.close()

@@ -254,7 +254,8 @@ class Service:
         self.status_stream = status_stream if status_stream is not None else sys.stderr
         self.streams: dict[str, _Stream] = {}
         # announced layouts, scoped per stream (shared with a ZeroMQ source, which decodes with them)
-        self.scope: SkeletonScope = getattr(source, "scope", None) or SkeletonScope(self.limits)
+        scope = getattr(source, "scope", None)  # (an empty scope is falsy: test for None)
+        self.scope: SkeletonScope = scope if scope is not None else SkeletonScope(self.limits)
         self._scope_forgotten = 0
         self._numbering: "OrderedDict[str, Numbering]" = OrderedDict()
         self._ended_labels: "OrderedDict[str, None]" = OrderedDict()

@@ -272,7 +272,7 @@ class ZmqSource:
         self._zmq = zmq
         self._wire = wire
         self.limits = limits or Limits()
-        self.scope = scope or SkeletonScope(self.limits)
+        self.scope = scope if scope is not None else SkeletonScope(self.limits)
         self.backlog = backlog or Backlog()
         self._ctx = context or zmq.Context.instance()
         self.sock = self._ctx.socket(zmq.PULL)
