@@ -42,7 +42,7 @@ def test_skeleton_scope_isolates_streams_and_protects_builtins():
     assert hit.value.limit == "builtin_skeleton"
     scope.announce("s2", KINECT_V2, 30.0)  # the built-in layout itself is fine
     for bad, limit in ((Skeleton("x" * 65, ("a", "b"), ((0, 1),)), "name"),
-                       (Skeleton("big", tuple(f"j{i}" for i in range(129)), ()), "joints")):
+                       (Skeleton("big", tuple(f"j{i}" for i in range(1025)), ()), "joints")):
         with pytest.raises(LimitHit) as hit:
             scope.announce("s3", bad, 30.0)
         assert hit.value.limit == limit
@@ -108,3 +108,24 @@ def test_the_service_decodes_and_validates_with_one_scope_even_while_it_is_empty
         assert svc.scope is source.scope, "a layout the source learns must be the one the service validates with"
     finally:
         source.close()
+
+
+def test_bodies_are_admitted_within_the_joint_rate_budget():
+    from test_service_loop import RecordingPublisher, ScriptedSource
+
+    from streamfix.service.engines import EngineOptions, engine_factory
+    from streamfix.service.server import Service
+    from streamfix.service.sources import Announce, Frame
+
+    big = Skeleton("grid400", tuple(f"j{i}" for i in range(400)), ())
+    items = [Announce("g", big, 200.0)]  # 400 joints x 200 Hz = 80,000 joint-samples/s per body
+    for k in range(3):
+        bodies = [BodyFrame(b, np.zeros((400, 3)), np.ones(400)) for b in range(4)]
+        items.append(Frame(SkeletonFrame("g", k, k * 5_000_000, "grid400", bodies), 0))
+    pub = RecordingPublisher()
+    svc = Service(ScriptedSource(items), pub, engine_factory("passthrough", EngineOptions()), status_interval_s=0,
+                  limits=Limits(max_joint_rate=200_000.0))
+    svc.run()
+    live = [f for kind, f in pub.sent if kind == "live"]
+    assert [len(f.bodies) for f in live] == [2, 2, 2], "two bodies fit 200,000 joints x Hz, the others are refused"
+    assert svc.m.limit_hits.value(limit="bodies_stream") == 6

@@ -70,6 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="body ids tracked per stream (default %(default)s)")
     lim.add_argument("--max-bodies-total", type=int, default=d.max_bodies_total, metavar="N",
                      help="body ids tracked over all streams (default %(default)s)")
+    lim.add_argument("--max-joint-rate", type=float, default=d.max_joint_rate, metavar="N",
+                     help="sum of joints x sensor rate over tracked bodies (bounds the engines' memory; "
+                     "default %(default)s)")
     lim.add_argument("--max-rate", type=float, default=d.max_rate_hz, metavar="HZ",
                      help="highest accepted sensor rate, Hz (default %(default)s)")
     lim.add_argument("--max-coordinate", type=float, default=d.max_coordinate_m, metavar="M",
@@ -156,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         limits = Limits(
             max_message_bytes=args.max_message_bytes, max_streams=args.max_streams,
             max_bodies_per_stream=args.max_bodies, max_bodies_total=args.max_bodies_total,
+            max_joint_rate=args.max_joint_rate,
             max_bodies_per_frame=min(d.max_bodies_per_frame, args.max_bodies), max_rate_hz=args.max_rate,
             min_rate_hz=min(d.min_rate_hz, args.max_rate), max_coordinate_m=args.max_coordinate,
         )

@@ -5,8 +5,9 @@ service counts it (``streamfix_limit_hits_total{limit=...}``, labels :data:`LIMI
 logs one rate-limited line and carries on with the rest of its input. The defaults
 bound the memory a hostile or broken producer can make the service hold: the
 streaming engine keeps a few seconds of every tracked body at the stream's rate
-(about 0.6 MB per body at 30 Hz, growing with the rate), so the rate range and the
-body and stream counts together bound the engines' memory, and the message size
+(about 0.6 MB per 25-joint body at 30 Hz: roughly 0.8 kB per joint and Hz), so the
+tracked bodies' joints x rate (``max_joint_rate``), with the body and stream counts,
+bound the engines' memory, and the message size
 bounds what decoding one message can allocate.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ LIMITS: tuple[str, ...] = (
     "name",              # a skeleton name longer than max_name_chars
     "builtin_skeleton",  # a skeleton message redefining a built-in skeleton name
     "bodies_frame",      # a frame with more than max_bodies_per_frame bodies (rejected)
-    "bodies_stream",     # a new body id beyond max_bodies_per_stream / max_bodies_total (body dropped)
+    "bodies_stream",     # a new body id beyond max_bodies_per_stream / max_bodies_total / max_joint_rate (dropped)
     "streams",           # a frame of a new stream beyond max_streams (rejected)
     "rate",              # a sensor rate outside [min_rate_hz, max_rate_hz] (rejected)
     "coordinate",        # a joint coordinate beyond max_coordinate_m (joint made missing)
@@ -40,7 +41,9 @@ class Limits:
     max_name_chars: length of an announced skeleton name. max_bodies_per_frame: bodies
     in one frame. max_bodies_per_stream / max_bodies_total: body ids tracked at once
     by one stream / by all streams (a body counts until ``body_ttl_s`` of sensor time
-    after it was last seen). max_streams: streams with a running engine.
+    after it was last seen). max_joint_rate: the sum over tracked bodies of joints x
+    stream rate (joint-samples per second; what the engines' memory grows with).
+    max_streams: streams with a running engine.
     min_rate_hz / max_rate_hz: accepted sensor rates. max_coordinate_m: a joint with a
     coordinate of larger magnitude is treated as missing (a sensor reports metres
     within a few tens of metres). max_announcements: skeleton messages remembered for
@@ -50,11 +53,12 @@ class Limits:
     """
 
     max_message_bytes: int = 256 * 1024
-    max_joints: int = 128
+    max_joints: int = 1024
     max_name_chars: int = 64
     max_bodies_per_frame: int = 16
     max_bodies_per_stream: int = 16
     max_bodies_total: int = 64
+    max_joint_rate: float = 200_000.0
     body_ttl_s: float = 2.0
     max_streams: int = 16
     min_rate_hz: float = 1.0

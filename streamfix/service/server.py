@@ -455,10 +455,13 @@ class Service:
                 del seen[bid]
         kept = []
         refused = 0
+        cost = st.skeleton.n_joints * st.rate_hz  # joint-samples per second one more body adds
         for body in frame.bodies:
             if body.body_id not in seen:
                 total = sum(len(s.body_seen) for s in self.streams.values())
-                if len(seen) >= self.limits.max_bodies_per_stream or total >= self.limits.max_bodies_total:
+                load = sum(len(s.body_seen) * s.skeleton.n_joints * s.rate_hz for s in self.streams.values())
+                if (len(seen) >= self.limits.max_bodies_per_stream or total >= self.limits.max_bodies_total
+                        or load + cost > self.limits.max_joint_rate):
                     refused += 1
                     continue
             seen[body.body_id] = t
@@ -467,7 +470,8 @@ class Service:
             frame.bodies = kept
             self._limit("bodies_stream", f"stream {frame.stream_id!r} seq {frame.seq}: {refused} new body ids "
                                          f"refused ({len(seen)} tracked, at most {self.limits.max_bodies_per_stream} "
-                                         f"per stream and {self.limits.max_bodies_total} in all)", refused)
+                                         f"per stream, {self.limits.max_bodies_total} in all, and "
+                                         f"{self.limits.max_joint_rate:g} joints x Hz in all)", refused)
 
     def _handle_frame(self, item: Frame) -> None:
         frame = item.frame
