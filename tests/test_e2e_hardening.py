@@ -119,8 +119,13 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
             send(topic_for("raw", "other"), encode_frame(arm_frame))  # arm3 is not announced for "other"
             arm_frame.stream_id = "arm"
             send(topic_for("raw", "arm"), encode_frame(arm_frame))  # ... but it is for "arm"
-            # 4. a msgpack bomb: 300 kB of empty arrays (over the message size limit)
+            # 4. a msgpack bomb: 300 kB of empty arrays (over the message size limit); 16 MB from another
+            # producer: ZeroMQ cuts that connection before the service sees a byte of it
             send(topic_for("raw", "bomb"), msgpack.packb([[]] * 300_000))
+            huge = zmq.Context.instance().socket(zmq.PUSH)
+            huge.setsockopt(zmq.LINGER, 0)
+            connect_and_wait(huge, sp.source)
+            huge.send_multipart([topic_for("raw", "bomb"), msgpack.packb([[]] * 16_000_000)])
             # 5. 64 bodies in a frame, then 16 new body ids per frame
             send(topic_for("raw", "crowd"), _frame("crowd", 0, 0, [_body(motion, 0, b) for b in range(64)]))
             for k in range(40):
@@ -136,6 +141,8 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
             for s in range(300):
                 send(topic_for("raw", f"many{s}"), _frame(f"many{s}", 0, 0, [_body(motion, s)]))
             m = _wait_metric(sp, 'streamfix_limit_hits_total{limit="streams"}', 1)
+            m = _wait_metric(sp, "streamfix_input_disconnects_total", 1)
+            huge.close(linger=0)
             status = _proc_status(sp.proc.pid)
             drain(2.0)
 
@@ -182,8 +189,9 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
     assert m['streamfix_limit_hits_total{limit="builtin_skeleton"}'] == 1
     assert m['streamfix_malformed_total{reason="unknown_skeleton"}'] >= 1
     assert frames("other") == [] and len(frames("arm")) == 1 and frames("arm")[0].skeleton == "arm3"
-    # 4. the bomb never reached the decoder
+    # 4. the bombs never reached the decoder
     assert m['streamfix_limit_hits_total{limit="message_size"}'] >= 1
+    assert m["streamfix_input_disconnects_total"] >= 1
     # 5. bodies bounded: 64 in a frame refused, churned ids beyond 16 tracked refused
     assert m['streamfix_limit_hits_total{limit="bodies_frame"}'] == 1
     assert m['streamfix_limit_hits_total{limit="bodies_stream"}'] >= 16 * 39 - 16
@@ -199,6 +207,8 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
     assert m['streamfix_limit_hits_total{limit="coordinate"}'] == 1
     far_out = frames("far")[0].bodies[0]
     assert np.abs(np.nan_to_num(far_out.positions)).max() < 50 and far_out.recovered[5]
+    # streams that ended are forgotten: their skeleton messages are not repeated for ever
+    assert sum(r.kind == "meta" and r.stream == "ovf" for r in got) <= 4
     # 8. restart: seq continues in a new epoch; duplicate producers cannot thrash the engine
     rst = frames("rst")
     assert len(rst) == 80 and [f.seq for f in rst] == list(range(100, 180))

@@ -140,6 +140,11 @@ class ServiceMetrics:
             "streamfix_shed_frames_total", "Input frames dropped unprocessed (overload backlog, shutdown), per reason.",
             ("reason",)
         )
+        self.disconnects = r.counter(
+            "streamfix_input_disconnects_total",
+            "Producer connections closed: the peer went away, or sent a message over 16 x the message size "
+            "limit (ZeroMQ drops it and cuts the connection).",
+        )
         self.backlog = r.gauge("streamfix_input_backlog_frames", "Input messages received and waiting to be handled.")
         self.backlog_age = r.gauge(
             "streamfix_input_backlog_seconds", "How long the oldest waiting input message has waited."
@@ -585,6 +590,9 @@ class Service:
         if forgotten > 0:
             self.m.limit_hits.inc(forgotten, limit="announcements")
             self._scope_forgotten = self.scope.forgotten
+        cut = getattr(self.source, "disconnects", 0) - self.m.disconnects.value()
+        if cut > 0:
+            self.m.disconnects.inc(cut)
         pending = getattr(self.source, "pending", None)
         if pending is not None:
             n, age = pending()

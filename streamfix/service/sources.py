@@ -285,6 +285,9 @@ class ZmqSource:
         self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self._max_batch = int(max_batch)
         self.exhausted = False  # a bound socket never ends by itself
+        # producers cut off: gone away, or over MAXMSGSIZE (libzmq drops the message and the connection)
+        self.disconnects = 0
+        self._monitor = self.sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
         self._running = True
         self._thread = threading.Thread(target=self._receive, name="zmq-source", daemon=True)
         self._thread.start()
@@ -296,9 +299,15 @@ class ZmqSource:
         zmq = self._zmq
         poller = zmq.Poller()
         poller.register(self.sock, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
         while self._running:
             try:
-                if not poller.poll(50):
+                ready = dict(poller.poll(50))
+                if self._monitor in ready:
+                    while self._monitor.poll(0):
+                        self._monitor.recv_multipart()
+                        self.disconnects += 1
+                if self.sock not in ready:
                     continue
                 for _ in range(1024):
                     parts = self.sock.recv_multipart(zmq.NOBLOCK, copy=True)
@@ -362,6 +371,8 @@ class ZmqSource:
         self.backlog.close()
         if self._thread.is_alive():
             self._thread.join(timeout=1.0)
+        self.sock.disable_monitor()
+        self._monitor.close(linger=0)
         self.sock.close(linger=0)
 
 
