@@ -76,6 +76,9 @@ def _frame_meaning(frame: SkeletonFrame) -> dict:
         "joints": len(frame.bodies[0].positions) if frame.bodies else get_skeleton(frame.skeleton).n_joints,
         "filled": bool(frame.filled),
         "bodies": bodies,
+        # optional keys (SPEC 4.1): in the meaning only when the message carries them
+        **({"epoch": int(frame.epoch)} if frame.epoch else {}),
+        **({"dropped": int(frame.dropped)} if frame.dropped else {}),
     }
 
 
@@ -181,6 +184,14 @@ def build_vectors() -> list[dict]:
     valid_frame("frame_custom_skeleton", "raw", f,
                 "frame of the custom skeleton: decodable only after skeleton_custom", requires="skeleton_custom")
 
+    # optional keys added to version 1 (own generator: the vectors above stay byte for byte)
+    f = SkeletonFrame("kinect0", 0, 2_566_666_666, "kinect_v2",
+                      [BodyFrame(1, _pose(np.random.default_rng(2026), J), np.ones(J), np.zeros(J, bool))],
+                      publish_time_ns=T0 + 5, epoch=1_790_000_000_123_456_789, dropped=4)
+    valid_frame("frame_live_epoch_dropped", "live", f,
+                "live output in a new epoch (the service restarted this stream's numbering: seq 0 is not "
+                "reordering) after shedding 4 input frames under overload (dropped=4)")
+
     # --- invalid: each must be rejected with the stated reason
     base = msgpack.unpackb(good, raw=False)
 
@@ -218,6 +229,8 @@ def build_vectors() -> list[dict]:
     invalid("bad_missing_seq", mutated(lambda m: m.pop("seq")), "field", "required key 'seq' missing")
     invalid("bad_seq_type", mutated(lambda m: m.update(seq="7")), "field", "'seq' is a string")
     invalid("bad_negative_seq", mutated(lambda m: m.update(seq=-1)), "field", "'seq' is negative")
+    invalid("bad_epoch_type", mutated(lambda m: m.update(epoch="1")), "field",
+            "optional 'epoch' present but a string, not an unsigned integer")
     invalid("bad_time_range", mutated(lambda m: m.update(t_sensor_ns=2**63)), "field",
             "t_sensor_ns 2^63 (a uint64) does not fit the signed 64-bit range of times")
     invalid("bad_pos_not_bin", mutated(lambda m: m["bodies"][0].update(pos=[0.0] * 75)), "field",

@@ -38,6 +38,9 @@ class SkeletonFrame:
     published (0 until then); ``skeleton`` a registry name (see ``streamfix.skeletons``).
     ``filled`` is True for a frame the service synthesised for a sensor frame that
     never arrived (a timestamp gap): every joint in it is recovered.
+    On the service's output, ``epoch`` identifies the run of ``seq`` numbering
+    (0 = not stated; see ``protocol/SPEC.md``) and ``dropped`` counts the input frames
+    of the stream the service shed under overload just before this instant.
     """
 
     stream_id: str
@@ -47,3 +50,5 @@ class SkeletonFrame:
     bodies: list[BodyFrame] = field(default_factory=list)
     publish_time_ns: int = 0
     filled: bool = False
+    epoch: int = 0
+    dropped: int = 0

@@ -59,10 +59,12 @@ class ServeProcess:
         self.out = f"tcp://127.0.0.1:{self.out_port}"
         self.stderr_path = tmp_path / f"{name}.stderr"
         self._stderr = open(self.stderr_path, "wb")
+        # exact-delivery tests feed bursts (replay --rate 0) on a loaded machine: back-pressure, not shedding
+        policy = () if "--overload" in extra else ("--overload", "block")
         cmd = [
             sys.executable, "-m", "streamfix", "serve",
             "--source", self.source, "--out", self.out,
-            "--metrics-port", str(self.metrics_port), "--status-interval", "0", *extra,
+            "--metrics-port", str(self.metrics_port), "--status-interval", "0", *policy, *extra,
         ]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=self._stderr, env=child_env(),
                                      cwd=str(PROJECT_ROOT))

@@ -102,6 +102,8 @@ def _meaning(msg) -> dict:
             "confidence": b.confidence.tolist(),
             "recovered": None if b.recovered is None else b.recovered.tolist(),
         } for b in msg.bodies],
+        **({"epoch": msg.epoch} if msg.epoch else {}),  # optional keys, stated only when present
+        **({"dropped": msg.dropped} if msg.dropped else {}),
     }
 
 

@@ -57,6 +57,7 @@ struct Frame {
     int64_t t_sensor_ns = 0, t_publish_ns = 0;
     uint64_t joints = 0;
     bool filled = false;
+    uint64_t epoch = 0, dropped = 0;  // optional keys (SPEC 4.1); 0 when absent
     std::vector<Body> bodies;
 };
 
@@ -167,6 +168,8 @@ struct Decoder {
         const msgpack_object* filled = map_get(m, "filled");
         if (!filled || filled->type != MSGPACK_OBJECT_BOOLEAN) throw Rejected("field", "'filled' missing or not a boolean");
         f.filled = filled->via.boolean;
+        if (map_get(m, "epoch")) f.epoch = get_u64(m, "epoch");
+        if (map_get(m, "dropped")) f.dropped = get_u64(m, "dropped");
         const msgpack_object* bodies = map_get(m, "bodies");
         if (!bodies || bodies->type != MSGPACK_OBJECT_ARRAY) throw Rejected("field", "'bodies' missing or not an array");
         if (bodies->via.array.size > 64) throw Rejected("field", "more than 64 bodies");
@@ -410,6 +413,8 @@ std::string compare_frame(const Frame& f, const Json& e) {
     if (f.skeleton != e.at("skeleton").str) return "skeleton differs";
     if (f.joints != e.at("joints").magnitude) return "joints differs";
     if (f.filled != e.at("filled").b) return "filled differs";
+    if (f.epoch != (e.has("epoch") ? e.at("epoch").magnitude : 0)) return "epoch differs";
+    if (f.dropped != (e.has("dropped") ? e.at("dropped").magnitude : 0)) return "dropped differs";
     const Json& bodies = e.at("bodies");
     if (f.bodies.size() != bodies.arr.size()) return "body count differs";
     for (size_t i = 0; i < f.bodies.size(); ++i) {
@@ -530,8 +535,8 @@ int subscribe(const std::string& endpoint, std::vector<std::string> topics, long
         return 1;
     }
     Decoder dec;
-    std::map<std::string, uint64_t> last_seq;
-    long printed = 0, rejected = 0, gaps = 0;
+    std::map<std::string, std::pair<uint64_t, uint64_t>> last_seq;  // topic -> (epoch, seq)
+    long printed = 0, rejected = 0, gaps = 0, restarts = 0;
     auto start = std::chrono::steady_clock::now();
     int rc = 2;
     for (;;) {
@@ -585,8 +590,9 @@ int subscribe(const std::string& endpoint, std::vector<std::string> topics, long
                 for (const auto& t : topics) wanted = wanted || topic.compare(0, t.size(), t) == 0;
                 if (wanted) {
                     auto it = last_seq.find(topic);
-                    if (it != last_seq.end() && f.seq != it->second + 1) ++gaps;
-                    last_seq[topic] = f.seq;
+                    if (it != last_seq.end() && it->second.first != f.epoch) ++restarts;  // new numbering
+                    else if (it != last_seq.end() && f.seq != it->second.second + 1) ++gaps;
+                    last_seq[topic] = {f.epoch, f.seq};
                     std::string line = topic + " seq=" + std::to_string(f.seq) + " t_sensor_ns=" +
                                        std::to_string(f.t_sensor_ns) + " bodies=" + std::to_string(f.bodies.size());
                     for (const Body& b : f.bodies) {
@@ -599,6 +605,7 @@ int subscribe(const std::string& endpoint, std::vector<std::string> topics, long
                                 std::to_string(rec) + "/" + std::to_string(missing);
                     }
                     if (f.filled) line += " filled";
+                    if (f.dropped) line += " dropped=" + std::to_string(f.dropped);
                     std::printf("%s\n", line.c_str());
                     std::fflush(stdout);
                     ++printed;
@@ -612,7 +619,8 @@ int subscribe(const std::string& endpoint, std::vector<std::string> topics, long
         }
         msgpack_unpacked_destroy(&keep);
     }
-    std::fprintf(stderr, "%ld frames, %ld rejected, %ld sequence gaps\n", printed, rejected, gaps);
+    std::fprintf(stderr, "%ld frames, %ld rejected, %ld sequence gaps, %ld epoch changes\n", printed, rejected, gaps,
+                 restarts);
     zmq_close(sock);
     zmq_ctx_term(ctx);
     return rc;

@@ -164,9 +164,17 @@ def decode(payload: bytes, skeletons: dict[str, dict]) -> dict:
             "confidence": conf,
             "recovered": None if rec is None else [x != 0 for x in rec],
         })
-    return {"type": "frame", "stream": stream, "seq": seq, "t_sensor_ns": t_sensor,
-            "t_publish_ns": t_pub, "skeleton": name, "joints": joints, "filled": filled,
-            "bodies": out_bodies}
+    out = {"type": "frame", "stream": stream, "seq": seq, "t_sensor_ns": t_sensor,
+           "t_publish_ns": t_pub, "skeleton": name, "joints": joints, "filled": filled,
+           "bodies": out_bodies}
+    for key in ("epoch", "dropped"):  # optional (SPEC 4.1)
+        if key in m:
+            value = _int(m, key, 0)
+            if value >= 2**64:
+                raise Rejected("field", f"{key!r} is {value}, outside the unsigned 64-bit range")
+            if value:
+                out[key] = value
+    return out
 
 
 def decode_skeleton(m: dict, skeletons: dict[str, dict]) -> dict:
@@ -240,6 +248,8 @@ def describe(topic: str, msg: dict) -> str:
         parts.append(f"{b['id']}:{len(b['positions']) - missing - rec}/{rec}/{missing}")
     if msg["filled"]:
         parts.append("filled")
+    if msg.get("dropped"):
+        parts.append(f"dropped={msg['dropped']}")
     return " ".join(parts)
 
 
@@ -252,8 +262,8 @@ def subscribe(endpoint: str, topics: list[str], count: int | None, timeout_s: fl
     sock.connect(endpoint)
     skeletons: dict[str, dict] = {}
     printed = rejected = 0
-    last_seq: dict[str, int] = {}
-    gaps = 0
+    last_seq: dict[str, tuple[int, int]] = {}  # topic -> (epoch, seq)
+    gaps = restarts = 0
     deadline = None if timeout_s is None else time.monotonic() + timeout_s
     try:
         while count is None or printed < count:
@@ -290,15 +300,18 @@ def subscribe(endpoint: str, topics: list[str], count: int | None, timeout_s: fl
             if not any(topic.startswith(t) for t in topics):
                 continue
             prev = last_seq.get(topic)
-            if prev is not None and msg["seq"] != prev + 1:
+            epoch = msg.get("epoch", 0)
+            if prev is not None and prev[0] != epoch:
+                restarts += 1  # the service restarted this stream's numbering: not a gap, not reordering
+            elif prev is not None and msg["seq"] != prev[1] + 1:
                 gaps += 1  # lost on the way (slow joiner / high-water mark)
-            last_seq[topic] = msg["seq"]
+            last_seq[topic] = (epoch, msg["seq"])
             print(describe(topic, msg), flush=True)
             printed += 1
     finally:
         sock.close()
         ctx.term()
-    print(f"{printed} frames, {rejected} rejected, {gaps} sequence gaps", file=sys.stderr)
+    print(f"{printed} frames, {rejected} rejected, {gaps} sequence gaps, {restarts} epoch changes", file=sys.stderr)
     return 0 if count is None or printed >= count else 2
 
 

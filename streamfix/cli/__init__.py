@@ -21,6 +21,7 @@ COMMANDS = {
     "train-prior": "train_prior",
     "view": "view",      # streamfix/viewer (browser viewer)
     "report": "report",  # streamfix/report (plotted reports)
+    "keys": "keys",
 }
 
 

@@ -12,6 +12,9 @@ observed samples plus ``--training`` reference takes): offline the filler sees b
 ends of every gap. Filled samples are flagged recovered in the output (kept by
 ``.sfrec``; a C3D or CSV file has no such flag) and counted in the summary. A progress bar is drawn
 on stderr when it is a terminal; one summary line goes to stdout.
+
+OUT is checked before any solving (writable format and directory, not the input, an
+existing file only with ``--overwrite``); a failed write prints one line and exits 1.
 """
 from __future__ import annotations
 
@@ -44,6 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--training", action="append", default=None, metavar="FILE_OR_DIR",
                         help="reference takes of the same skeleton / marker set for the gap filler "
                              "(files or directories; repeatable)")
+    parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists (never the input)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
 
 
@@ -96,10 +100,16 @@ def _longest_gap(missing: np.ndarray) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io import read_motion, write_motion
+    from ..io import WRITE_FORMATS, read_motion, write_motion
     from ..streaming.engine import EngineConfig
     from ..streaming.offline import clean_motion
+    from .outputs import check_output
 
+    try:  # before any solving: a bad output must not cost the whole run
+        check_output(args.output, formats=WRITE_FORMATS, inputs=[args.input], overwrite=args.overwrite)
+    except (OSError, ValueError) as exc:
+        print(f"streamfix clean: {exc}", file=sys.stderr)
+        return 2
     try:
         motion = read_motion(args.input)
     except (OSError, ValueError) as exc:
@@ -163,8 +173,10 @@ def run(args: argparse.Namespace) -> int:
                                       np.minimum(cleaned.confidence, 0.5), cleaned.confidence)
     try:
         write_motion(cleaned, args.output)
+        if not Path(args.output).is_file() or Path(args.output).stat().st_size == 0:
+            raise OSError(f"{args.output}: the writer reported success but no file was written")
     except (OSError, ValueError) as exc:
-        print(f"streamfix clean: {exc}", file=sys.stderr)
+        print(f"streamfix clean: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
     if not args.quiet:
         print(_summary(args.input, source, cleaned, metrics, config, notes, gapfilled))

@@ -16,6 +16,10 @@ summary. ``--fsync S`` bounds what a power loss can take (default 1 s).
 
 Stops after ``--count N`` frames, after ``--duration S`` seconds, or on a signal.
 Malformed messages are counted by reason, skipped, and reported on stderr.
+
+OUT must end in ``.sfrec`` (the only format written byte for byte); an existing file
+needs ``--append`` or ``--overwrite``. A failed write (disk full) prints one line and
+exits 1; the file then holds every record acknowledged before the error.
 """
 from __future__ import annotations
 
@@ -45,6 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ack", action="store_true", help="print 'ack TOPIC SEQ' on stdout once each frame is in the file")
     p.add_argument("--bind", action="store_true", help="bind a PULL socket instead of connecting a SUB")
     p.add_argument("--quiet", action="store_true", help="no per-error lines and no summary on stderr")
+    from .keys import add_curve_client_arguments
+
+    add_curve_client_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,7 +69,12 @@ def run(args: argparse.Namespace) -> int:
             print(f"streamfix record: skipped message on {topic.decode('ascii', 'replace')!r} "
                   f"({error.reason}): {error}", file=sys.stderr, flush=True)
 
+    from .keys import curve_client
+    from .outputs import check_output
+
     try:
+        check_output(args.out, formats=(".sfrec",), overwrite=args.overwrite, append=args.append)
+        curve = curve_client(args)
         writer = RecordingWriter(args.out, append=args.append, overwrite=args.overwrite,
                                  fsync_interval_s=args.fsync)
     except (OSError, ValueError) as exc:
@@ -71,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         sub = Subscriber(args.endpoint, topics + [meta], bind=args.bind,
-                         socket_type=zmq.PULL if args.bind else zmq.SUB, on_error=on_error)
+                         socket_type=zmq.PULL if args.bind else zmq.SUB, on_error=on_error, curve=curve)
     except zmq.ZMQError as exc:
         writer.close()
         print(f"streamfix record: cannot {'bind' if args.bind else 'connect to'} {args.endpoint!r}: {exc}",
@@ -86,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     last_meta: dict[str, tuple] = {}
     t0 = time.monotonic()
     reason = "done"
+    failed = None
     try:
         while args.count is None or frames < args.count:
             remaining = None
@@ -113,11 +126,20 @@ def run(args: argparse.Namespace) -> int:
             reason = "count reached"
     except _Stop as stop:
         reason = f"signal {signal.Signals(stop.args[0]).name}"
+    except OSError as exc:  # disk full, file too large, I/O error: every record before it is readable
+        failed = f"writing {args.out} failed after {frames} frames: {exc.strerror or exc}"
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-        writer.close()
+        try:
+            writer.close()
+        except OSError as exc:
+            failed = failed or f"closing {args.out} failed after {frames} frames: {exc.strerror or exc}"
         sub.close()
+    if failed:
+        print(f"streamfix record: {failed}; the file holds every frame acknowledged before the error",
+              file=sys.stderr)
+        return 1
     if not args.quiet:
         c = sub.counters
         print(

@@ -17,6 +17,10 @@ Timing: frame ``i`` is sent at ``start + (t_i - t_0) / rate`` on the monotonic c
 (absolute schedule: no drift accumulates from sleep overshoot); ``--rate 0`` sends as
 fast as the socket takes them. ``--loop`` repeats the recording with continuing
 sequence numbers and sensor times, until interrupted (SIGINT/SIGTERM stop cleanly).
+
+Nobody listening: when no receiver ever connected, or none took a frame for
+``--timeout`` seconds (PUSH blocks at its high-water mark), the replay says so and exits
+1 instead of reporting frames as sent.
 """
 from __future__ import annotations
 
@@ -41,7 +45,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sndhwm", type=int, default=1000, help="PUSH high-water mark (messages) before it blocks")
     p.add_argument("--linger-ms", type=int, default=10000,
                    help="on exit, wait up to this long for queued frames to be delivered (default %(default)s)")
+    p.add_argument("--timeout", type=float, default=10.0, metavar="S",
+                   help="give up (exit 1) when no receiver takes a frame for S seconds (default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no summary line on stderr")
+    from .keys import add_curve_client_arguments
+
+    add_curve_client_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,14 +75,23 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
 
+    from .keys import curve_client
+
     try:
-        pub = FramePublisher(args.to, bind=False, socket_type=zmq.PUSH, sndhwm=args.sndhwm)
+        pub = FramePublisher(args.to, bind=False, socket_type=zmq.PUSH, sndhwm=args.sndhwm,
+                             curve=curve_client(args))
+    except (OSError, ValueError) as exc:
+        print(f"streamfix replay: CURVE keys: {exc}", file=sys.stderr)
+        return 2
     except zmq.ZMQError as exc:
         print(f"streamfix replay: cannot connect to {args.to!r}: {exc}", file=sys.stderr)
         return 2
     pub.socket.setsockopt(zmq.LINGER, int(args.linger_ms))
+    pub.socket.setsockopt(zmq.SNDTIMEO, max(1, int(args.timeout * 1000)))
+    peers = _PeerWatch(pub.socket, args.to)
     pacer = Pacer(math.inf if args.rate == 0 else args.rate)
     sent = 0
+    failed = None
     t_start = time.monotonic()
     try:
         for stream_id, skeleton, rate_hz in playback.announce:
@@ -87,13 +105,50 @@ def run(args: argparse.Namespace) -> int:
                 break
             pub.publish("raw", frame)
             sent += 1
+    except zmq.Again:  # SNDHWM frames queued and nobody took one for --timeout seconds
+        failed = f"no receiver at {args.to} took a frame for {args.timeout:g} s"
     finally:
+        connected = peers.connected()
+        peers.close()
+        if not connected or failed is not None:
+            pub.socket.setsockopt(zmq.LINGER, 0)  # nobody to deliver to: do not wait
         pub.close()  # lingers so queued frames reach the service
+    took = time.monotonic() - t_start
+    if failed is None and not connected:
+        failed = f"no receiver ever connected at {args.to}"
+    if failed is not None:
+        print(f"streamfix replay: {failed}: {sent} frames handed to ZeroMQ, none known delivered "
+              f"(is `streamfix serve --source {args.to}` running?)", file=sys.stderr)
+        return 1
     if not args.quiet:
-        took = time.monotonic() - t_start
         print(
             f"streamfix replay: sent {sent} frames to {args.to} in {took:.2f} s, rate x{args.rate:g}: "
             f"{playback.describe()}",
             file=sys.stderr,
         )
     return 0
+
+
+class _PeerWatch:
+    """Watches a connecting socket's handshakes: did any receiver connect at all?"""
+
+    def __init__(self, sock, endpoint: str) -> None:
+        import zmq
+
+        self._mon = sock.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
+        self._sock = sock
+        self._seen = False
+        sock.disconnect(endpoint)  # connect again under the monitor, so no handshake is missed
+        sock.connect(endpoint)
+
+    def connected(self) -> bool:
+        from zmq.utils.monitor import recv_monitor_message
+
+        while not self._seen and self._mon.poll(0):
+            recv_monitor_message(self._mon)
+            self._seen = True
+        return self._seen
+
+    def close(self) -> None:
+        self._sock.disable_monitor()
+        self._mon.close(linger=0)

@@ -10,7 +10,11 @@ Examples::
 
 Sources, topics, socket patterns and metrics are described in
 :mod:`streamfix.service.sources`, :mod:`streamfix.service.publisher` and
-:mod:`streamfix.service.server`. Endpoints bind to 127.0.0.1 unless told otherwise.
+:mod:`streamfix.service.server`; resource limits in :mod:`streamfix.service.limits`.
+Endpoints bind to 127.0.0.1 unless told otherwise. Binding anything else requires CURVE
+(``--curve-secret`` and ``--curve-clients``, keys from ``streamfix keys``) or an explicit
+``--insecure``; the metrics endpoint on a non-loopback host is allowed with a warning
+(it carries counts, no data).
 """
 from __future__ import annotations
 
@@ -58,6 +62,63 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",
                    help="also serve the browser viewer (streamfix view) on http://127.0.0.1:PORT (default 8765)")
+    lim = p.add_argument_group("limits (each hit is counted in streamfix_limit_hits_total)")
+    d = _limit_defaults()
+    lim.add_argument("--max-message-bytes", type=int, default=d.max_message_bytes, metavar="N",
+                     help="largest input message (default %(default)s)")
+    lim.add_argument("--max-streams", type=int, default=d.max_streams, metavar="N",
+                     help="streams served at once (default %(default)s)")
+    lim.add_argument("--max-bodies", type=int, default=d.max_bodies_per_stream, metavar="N",
+                     help="body ids tracked per stream (default %(default)s)")
+    lim.add_argument("--max-bodies-total", type=int, default=d.max_bodies_total, metavar="N",
+                     help="body ids tracked over all streams (default %(default)s)")
+    lim.add_argument("--max-joint-rate", type=float, default=d.max_joint_rate, metavar="N",
+                     help="sum of joints x sensor rate over tracked bodies (bounds the engines' memory; "
+                     "default %(default)s)")
+    lim.add_argument("--max-rate", type=float, default=d.max_rate_hz, metavar="HZ",
+                     help="highest accepted sensor rate, Hz (default %(default)s)")
+    lim.add_argument("--max-coordinate", type=float, default=d.max_coordinate_m, metavar="M",
+                     help="joints with a coordinate beyond M metres are missing (default %(default)s)")
+    lim.add_argument("--overload", default="shed", choices=("shed", "block"),
+                     help="ZeroMQ input beyond the backlog bound: shed the oldest frames, counted, so live output "
+                     "stays current (live sensors), or block the producer, losing nothing (bulk replays); "
+                     "default %(default)s")
+    lim.add_argument("--backlog-frames", type=int, default=2000, metavar="N",
+                     help="input messages waiting before the oldest are shed / the producer blocks "
+                     "(default %(default)s)")
+    lim.add_argument("--backlog-seconds", type=float, default=0.05, metavar="S",
+                     help="shed: input older than S seconds is dropped (default %(default)s)")
+    lim.add_argument("--drain-timeout", type=float, default=2.0, metavar="S",
+                     help="on SIGTERM, handle received input for at most S seconds; the rest is counted "
+                     "as shed (default %(default)s)")
+    lim.add_argument("--flush-timeout", type=float, default=10.0, metavar="S",
+                     help="on exit, wait at most S seconds for windows being solved (default %(default)s)")
+    sec = p.add_argument_group("security")
+    sec.add_argument("--curve-secret", default=None, metavar="FILE",
+                     help="the service's CURVE secret key (server.key_secret from `streamfix keys`): "
+                     "encrypt and authenticate --source and --out")
+    sec.add_argument("--curve-clients", default=None, metavar="DIR",
+                     help="directory of allowed client public keys (*.key); required with --curve-secret")
+    sec.add_argument("--insecure", action="store_true",
+                     help="allow binding a non-loopback address without CURVE (anyone reaching it can inject and read)")
+
+
+def _limit_defaults():
+    from ..service.limits import Limits
+
+    return Limits()
+
+
+def _check_exposure(args: argparse.Namespace, spec: str, curve) -> str | None:
+    """An error message if a non-loopback endpoint would be bound without CURVE and without --insecure."""
+    from ..transport.curve import is_loopback_endpoint
+
+    exposed = [e for e in (args.out, spec) if "://" in e and not is_loopback_endpoint(e)]
+    if exposed and curve is None and not args.insecure:
+        return (f"refusing to bind {', '.join(exposed)} without authentication: anyone who can reach it could "
+                "inject frames and read the output. Use --curve-secret/--curve-clients (keys: `streamfix keys DIR`) "
+                "or pass --insecure")
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,10 +127,14 @@ def run(args: argparse.Namespace) -> int:
     )
     log = logging.getLogger("streamfix.service")
 
+    import zmq
+
     from ..service.engines import EngineOptions, engine_factory, parse_lookahead
+    from ..service.limits import Limits
     from ..service.publisher import ServicePublisher
     from ..service.server import Service
-    from ..service.sources import default_replay_file, open_source
+    from ..service.sources import Backlog, default_replay_file, open_source
+    from ..transport.curve import CurveServer, is_loopback_endpoint
 
     spec = args.source
     if spec is None:
@@ -92,7 +157,39 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamfix serve: bad engine settings: {exc}", file=sys.stderr)
         return 2
     try:
-        source = open_source(spec, rate=rate, loop=args.loop, stream_id=args.stream_id)
+        d = Limits()
+        limits = Limits(
+            max_message_bytes=args.max_message_bytes, max_streams=args.max_streams,
+            max_bodies_per_stream=args.max_bodies, max_bodies_total=args.max_bodies_total,
+            max_joint_rate=args.max_joint_rate,
+            max_bodies_per_frame=min(d.max_bodies_per_frame, args.max_bodies), max_rate_hz=args.max_rate,
+            min_rate_hz=min(d.min_rate_hz, args.max_rate), max_coordinate_m=args.max_coordinate,
+        )
+        backlog = Backlog(args.backlog_frames, args.backlog_seconds, args.overload)
+    except ValueError as exc:
+        print(f"streamfix serve: bad limits: {exc}", file=sys.stderr)
+        return 2
+    curve = None
+    if (args.curve_secret is None) != (args.curve_clients is None):
+        print("streamfix serve: --curve-secret and --curve-clients go together", file=sys.stderr)
+        return 2
+    if args.curve_secret is not None:
+        try:
+            curve = CurveServer(args.curve_secret, args.curve_clients)
+        except (OSError, ValueError) as exc:
+            print(f"streamfix serve: CURVE keys: {exc}", file=sys.stderr)
+            return 2
+    problem = _check_exposure(args, spec, curve)
+    if problem:
+        print(f"streamfix serve: {problem}", file=sys.stderr)
+        return 2
+    if not is_loopback_endpoint(f"tcp://{args.metrics_host}:0") and args.metrics_port is not None:
+        log.warning("metrics are served on %s, reachable from other machines (counts only, no frames)",
+                    args.metrics_host)
+    ctx = zmq.Context.instance()
+    try:
+        source = open_source(spec, rate=rate, loop=args.loop, stream_id=args.stream_id, context=ctx,
+                             limits=limits, backlog=backlog, curve=curve)
     except (FileNotFoundError, ValueError, RuntimeError, OSError) as exc:
         print(f"streamfix serve: cannot open source: {exc}", file=sys.stderr)
         return 2
@@ -101,7 +198,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         publisher = ServicePublisher(
-            args.out, sndhwm=args.sndhwm, linger_ms=args.linger_ms, meta_interval_s=args.meta_interval
+            args.out, sndhwm=args.sndhwm, linger_ms=args.linger_ms, meta_interval_s=args.meta_interval,
+            context=ctx, curve=curve,
         )
     except Exception as exc:
         source.close()
@@ -118,6 +216,8 @@ def run(args: argparse.Namespace) -> int:
             status_interval_s=args.status_interval,
             start_delay_s=args.start_delay,
             idle_timeout_s=args.idle_timeout,
+            flush_timeout_s=args.flush_timeout,
+            limits=limits,
         )
     except OSError as exc:
         publisher.close()
@@ -133,7 +233,8 @@ def run(args: argparse.Namespace) -> int:
         if service.metrics_server
         else ""
     )
-    log.info("ready: source %s, publishing on %s%s", source.describe(), publisher.endpoint, metrics)
+    secured = ", CURVE on" if curve is not None else ""
+    log.info("ready: source %s, publishing on %s%s%s", source.describe(), publisher.endpoint, metrics, secured)
     viewer = None
     if args.view is not None:  # --view: the browser viewer beside the service (streamfix/viewer)
         from ..viewer import Viewer
@@ -143,10 +244,14 @@ def run(args: argparse.Namespace) -> int:
             log.info("viewer: open %s", viewer.url)
         except OSError as exc:
             service.close()
+            if curve is not None:
+                curve.stop()
             print(f"streamfix serve: --view: cannot serve the viewer on port {args.view}: {exc}", file=sys.stderr)
             return 2
     try:
-        return service.run()
+        return service.run(drain_timeout_s=args.drain_timeout)
     finally:
         if viewer is not None:
             viewer.close()
+        if curve is not None:
+            curve.stop()

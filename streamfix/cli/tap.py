@@ -36,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.add_argument("--bind", action="store_true",
                    help="bind a PULL socket instead of connecting a SUB (receive what a replay sends)")
+    from .keys import add_curve_client_arguments
+
+    add_curve_client_arguments(p)
 
 
 def _num(x: float) -> float | None:
@@ -80,6 +83,10 @@ def frame_to_json(received) -> dict:
         "filled": msg.filled,
         "bodies": bodies,
     })
+    if msg.epoch:
+        out["epoch"] = msg.epoch
+    if msg.dropped:
+        out["dropped"] = msg.dropped
     return out
 
 
@@ -101,6 +108,8 @@ def frame_to_line(received) -> str:
         parts.append(f"{b.body_id}:{int((~missing & ~rec).sum())}/{int(rec.sum())}/{int(missing.sum())}")
     if msg.filled:
         parts.append("filled")
+    if msg.dropped:
+        parts.append(f"dropped={msg.dropped}")
     if msg.publish_time_ns:
         parts.append(f"latency_ms={(received.recv_time_ns - msg.publish_time_ns) / 1e6:.2f}")
     return " ".join(parts)
@@ -121,9 +130,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamfix tap: skipped message on {topic.decode('ascii', 'replace')!r} ({error.reason}): {error}",
               file=sys.stderr, flush=True)
 
+    from .keys import curve_client
+
+    try:
+        curve = curve_client(args)
+    except (OSError, ValueError) as exc:
+        print(f"streamfix tap: CURVE keys: {exc}", file=sys.stderr)
+        return 2
     try:
         sub = Subscriber(args.endpoint, topics, bind=args.bind,
-                         socket_type=zmq.PULL if args.bind else zmq.SUB, on_error=on_error)
+                         socket_type=zmq.PULL if args.bind else zmq.SUB, on_error=on_error, curve=curve)
     except zmq.ZMQError as exc:
         print(f"streamfix tap: cannot {'bind' if args.bind else 'connect to'} {args.endpoint!r}: {exc}", file=sys.stderr)
         return 2

@@ -151,3 +151,5 @@ def write_c3d(motion: Motion, path: str | Path) -> None:
     c["data"]["points"] = pts
     c["data"]["meta_points"] = {"residuals": res, "camera_masks": np.zeros((7, M, T), dtype=bool)}
     c.write(str(path))
+    if not Path(path).is_file():  # ezc3d returns quietly when it cannot open the file
+        raise OSError(f"{path}: the C3D file could not be written (missing or unwritable directory?)")

@@ -8,7 +8,8 @@
     baseline of ``benchmarks/bench_service.py`` (socket + encoding cost alone) and a
     way to run the service's plumbing without the solver.
 
-An engine offers ``push(frame) -> [(kind, frame)]``, ``flush(timeout) -> [(kind, frame)]``,
+An engine offers ``push(frame, fill=True) -> [(kind, frame)]`` (``fill=False``: frames
+before this one were shed, do not synthesise them), ``flush(timeout) -> [(kind, frame)]``,
 optionally ``poll() -> [(kind, frame)]`` (outputs finished in the background) and
 ``metrics() -> dict``; ``kind`` is ``"live"`` or ``"clean"``.
 """
@@ -45,7 +46,7 @@ class PassthroughEngine:
         self.rate_hz = rate_hz
         self._frames = 0
 
-    def push(self, frame: SkeletonFrame) -> list[tuple[str, SkeletonFrame]]:
+    def push(self, frame: SkeletonFrame, fill: bool = True) -> list[tuple[str, SkeletonFrame]]:
         self._frames += 1
         clean = copy.copy(frame)
         clean.bodies = [copy.copy(b) for b in frame.bodies]

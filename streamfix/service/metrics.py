@@ -101,6 +101,12 @@ class Counter(_Family):
         with self._lock:
             return self._values.get(self._key(labels), 0.0)
 
+    def remove(self, **labels: str) -> None:
+        """Forget one label set (a reclaimed stream), so label sets stay bounded."""
+        key = self._key(labels)
+        with self._lock:
+            self._values.pop(key, None)
+
     def values(self) -> dict[tuple[str, ...], float]:
         with self._lock:
             return dict(self._values)
@@ -235,16 +241,58 @@ def parse_prometheus_text(text: str) -> dict[str, float]:
     return out
 
 
+class _BoundedHTTPServer(ThreadingHTTPServer):
+    """A threading HTTP server that serves at most ``max_connections`` clients at once.
+
+    A connection beyond the bound is closed at once (counted in ``refused``), so slow
+    or idle clients can hold at most that many threads; each of those is released
+    after the handler's socket timeout.
+    """
+
+    daemon_threads = True
+    request_queue_size = 64  # listen backlog: a burst of clients is accepted (and refused) quickly
+
+    def __init__(self, address, handler, max_connections: int) -> None:
+        self._slots = threading.BoundedSemaphore(int(max_connections))
+        self.refused = 0
+        super().__init__(address, handler)
+
+    def process_request(self, request, client_address) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.refused += 1
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except Exception:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
+
+
 class MetricsServer:
     """Serve ``registry.render()`` at ``http://HOST:PORT/metrics`` from a daemon thread.
 
-    ``port=0`` picks a free port; the bound one is ``self.port``.
+    ``port=0`` picks a free port; the bound one is ``self.port``. A client has
+    ``timeout_s`` to send its request (and to take the answer) before its connection
+    is closed, and at most ``max_connections`` are served at once (more are closed on
+    accept), so slow clients cannot pile up threads.
     """
 
-    def __init__(self, registry: Registry, port: int, host: str = "127.0.0.1") -> None:
+    def __init__(
+        self, registry: Registry, port: int, host: str = "127.0.0.1", *, timeout_s: float = 5.0,
+        max_connections: int = 8,
+    ) -> None:
         reg = registry
 
         class Handler(BaseHTTPRequestHandler):
+            timeout = float(timeout_s)  # socket timeout: a silent client is dropped after this
+
             def do_GET(self) -> None:  # noqa: N802 (http.server API)
                 if self.path.split("?")[0] not in ("/metrics", "/"):
                     self.send_error(404, "only /metrics is served here")
@@ -259,8 +307,7 @@ class MetricsServer:
             def log_message(self, format: str, *args: object) -> None:  # keep stderr for the status line
                 return
 
-        self._httpd = ThreadingHTTPServer((host, int(port)), Handler)
-        self._httpd.daemon_threads = True
+        self._httpd = _BoundedHTTPServer((host, int(port)), Handler, max_connections)
         self.host = host
         self.port = int(self._httpd.server_address[1])
         self._thread = threading.Thread(target=self._httpd.serve_forever, name="metrics-http", daemon=True)

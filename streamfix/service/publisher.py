@@ -46,10 +46,11 @@ class ServicePublisher(FramePublisher):
         linger_ms: int = 2000,
         meta_interval_s: float = DEFAULT_META_INTERVAL_S,
         context: zmq.Context | None = None,
+        curve=None,
     ) -> None:
         super().__init__(
             endpoint, bind=True, socket_type=zmq.PUB, context=context,
-            sndhwm=sndhwm, meta_interval_s=meta_interval_s,
+            sndhwm=sndhwm, meta_interval_s=meta_interval_s, curve=curve,
         )
         self.socket.setsockopt(zmq.LINGER, int(linger_ms))
         self.drops: Counter = Counter()
@@ -74,6 +75,11 @@ class ServicePublisher(FramePublisher):
         if self._meta.get(stream_id) == (skeleton, float(rate_hz)):
             return
         super().announce(stream_id, skeleton, rate_hz)
+
+    def forget(self, stream_id: str) -> None:
+        """Stop repeating a stream's skeleton message (the stream ended)."""
+        self._meta.pop(stream_id, None)
+        self._meta_sent.pop(stream_id, None)
 
     def publish(self, kind: str, frame: SkeletonFrame) -> bool:  # type: ignore[override]
         """Encode and send one frame on ``sf/<kind>/<stream>``; stamps ``publish_time_ns``."""

@@ -16,12 +16,31 @@ their own daemon threads; the engine may solve windows on its own worker):
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
    one-line status goes to stderr every ``status_interval_s``.
 
-Shutdown: SIGINT/SIGTERM (or the end of a ``replay:``/``stdin`` source) stops the
-loop; whatever the source has already received is drained, every engine is
-flushed (``engine.flush()`` emits each pending frame), those frames are published,
-and only then are the sockets closed, with LINGER so queued messages still leave.
+Containment: nothing a producer sends can raise out of the loop. Messages over a
+resource limit (:mod:`.limits`) are counted under ``streamfix_limit_hits_total{limit}``
+and skipped (or, for bodies and coordinates, the offending part is dropped). An
+exception from a stream's engine or its output (a bug, ``MemoryError``) is counted
+under ``streamfix_stream_failures_total{stage}``, the stream's engine is discarded,
+and its next frame starts it afresh in a new epoch; other streams are untouched.
+Engine restarts of any cause are counted in ``streamfix_stream_restarts_total{cause}``.
 
-Latencies (seconds, monotonic clock, from a frame's arrival at the service):
+Sequence numbers: the service renumbers each stream's output per
+:mod:`.numbering` (``epoch`` and ``seq`` on the wire; ``seq`` can never overflow).
+
+Overload: the source keeps what it received in a bounded backlog
+(:class:`~.sources.Backlog`) and sheds the oldest frames beyond it; shed frames are
+counted (``streamfix_shed_frames_total{reason}``) and announced on the wire as
+``dropped`` on the stream's next ``live`` frame. ``streamfix_input_backlog_frames`` /
+``_seconds`` show the backlog.
+
+Shutdown: SIGINT/SIGTERM (or the end of a ``replay:``/``stdin`` source) stops the
+loop; what the source has already received is handled for at most
+``drain_timeout_s`` and the rest is counted as shed (``reason="shutdown"``) and logged;
+every engine is flushed (``engine.flush()`` emits each pending frame, waiting at most
+``flush_timeout_s`` for windows), those frames are published, and only then are the
+sockets closed, with LINGER so queued messages still leave.
+
+Latencies (seconds, monotonic clock, from a frame's arrival at the service's socket):
 ``streamfix_live_latency_seconds`` / ``streamfix_clean_latency_seconds`` end to end
 up to the publish call; ``streamfix_live_compute_seconds`` the engine call that
 produced the live frame; ``streamfix_clean_compute_seconds`` how long after the
@@ -30,6 +49,7 @@ i.e. the clean latency beyond the lookahead.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import signal
 import sys
@@ -42,16 +62,25 @@ from typing import Callable
 from ..frames import SkeletonFrame
 from ..skeletons import Skeleton, get_skeleton
 from ..transport.wire import WireError, check_stream_id
+from .limits import LIMITS, Limits
 from .metrics import MetricsServer, Registry
+from .numbering import Numbering
 from .publisher import ServicePublisher
-from .sources import Announce, Frame, Rejected
-from .validate import REASONS, BadInput, validate_frame
+from .scope import SkeletonScope
+from .sources import Announce, Frame, Limited, Rejected, Shed
+from .validate import REASONS, BadInput, LimitHit, check_rate, limit_coordinates, short, validate_frame
 
 __all__ = ["Service", "ServiceMetrics"]
 
 log = logging.getLogger("streamfix.service")
 
 _MAX_PENDING = 100_000  # arrival times kept per stream for latency accounting
+_MAX_NUMBERINGS = 1024  # streams whose seq/epoch state outlives their engine (LRU)
+_MAX_STREAM_LABELS = 64  # label sets of ended streams kept in per-stream metrics
+#: ``streamfix_stream_failures_total{stage}``: where a contained exception came from
+FAILURE_STAGES = ("engine", "output", "flush")
+#: ``streamfix_stream_restarts_total{cause}``: why a stream's engine was started afresh
+RESTART_CAUSES = ("producer_restart", "skeleton_change", "failure")
 # engine counters forwarded as streamfix_engine_events_total{event=...}
 _ENGINE_EVENTS = ("windows_solved", "windows_skipped", "windows_abandoned", "solver_errors", "degrade_events")
 
@@ -97,6 +126,37 @@ class ServiceMetrics:
         self.clean_latency = r.histogram(
             "streamfix_clean_latency_seconds", "Arrival to publish of a clean frame (lookahead + compute)."
         )
+        self.limit_hits = r.counter(
+            "streamfix_limit_hits_total", "Messages, bodies or joints over a resource limit (skipped), per limit.", ("limit",)
+        )
+        self.failures = r.counter(
+            "streamfix_stream_failures_total",
+            "Exceptions contained to one stream (its engine is restarted), per stage.", ("stage",)
+        )
+        self.restarts = r.counter(
+            "streamfix_stream_restarts_total", "Stream engines started afresh (a new epoch), per cause.", ("cause",)
+        )
+        self.shed = r.counter(
+            "streamfix_shed_frames_total", "Input frames dropped unprocessed (overload backlog, shutdown), per reason.",
+            ("reason",)
+        )
+        self.disconnects = r.counter(
+            "streamfix_input_disconnects_total",
+            "Producer connections closed: the peer went away, or sent a message over 16 x the message size "
+            "limit (ZeroMQ drops it and cuts the connection).",
+        )
+        self.backlog = r.gauge("streamfix_input_backlog_frames", "Input messages received and waiting to be handled.")
+        self.backlog_age = r.gauge(
+            "streamfix_input_backlog_seconds", "How long the oldest waiting input message has waited."
+        )
+        for limit in LIMITS:
+            self.limit_hits.touch(limit=limit)
+        for stage in FAILURE_STAGES:
+            self.failures.touch(stage=stage)
+        for cause in RESTART_CAUSES:
+            self.restarts.touch(cause=cause)
+        for reason in ("backlog", "shutdown"):
+            self.shed.touch(reason=reason)
         for reason in REASONS:
             self.malformed.touch(reason=reason)
         for event in _ENGINE_EVENTS:
@@ -124,6 +184,12 @@ class _Stream:
     events_seen: dict = field(default_factory=dict)
     last_seq: int | None = None
     last_active_ns: int = 0  # when the service last handled a frame of this stream
+    numbering: Numbering = field(default_factory=Numbering)
+    started_ns: int = 0  # monotonic time the engine started
+    body_seen: dict = field(default_factory=dict)  # body id -> newest sensor time (ns) it was in a frame
+    newest_t_ns: int | None = None
+    dropped: int = 0  # input frames shed since the last live frame went out
+    restarted: bool = False  # this engine replaced one of the same stream (restart cooldown applies)
 
     def note_arrival(self, time_ns: int, arrival_ns: int) -> None:
         index = self.base_index + len(self.by_index)
@@ -175,6 +241,7 @@ class Service:
         flush_timeout_s: float = 10.0,
         start_delay_s: float = 0.0,
         idle_timeout_s: float = 0.0,
+        limits: Limits | None = None,
     ) -> None:
         self.source = source
         self.publisher = publisher
@@ -183,6 +250,7 @@ class Service:
         self.flush_timeout_s = float(flush_timeout_s)
         self.start_delay_s = float(start_delay_s)
         self.idle_timeout_s = float(idle_timeout_s)
+        self.limits = limits or getattr(source, "limits", None) or Limits()
         self.m = metrics or ServiceMetrics()
         self.metrics_server: MetricsServer | None = None
         if metrics_port is not None:
@@ -190,8 +258,16 @@ class Service:
         self.status_interval_s = float(status_interval_s)
         self.status_stream = status_stream if status_stream is not None else sys.stderr
         self.streams: dict[str, _Stream] = {}
-        self._announced: dict[str, tuple[Skeleton, float]] = {}
-        self._skeletons: dict[str, Skeleton] = dict(getattr(source, "skeletons", {}) or {})
+        # announced layouts, scoped per stream (shared with a ZeroMQ source, which decodes with them)
+        scope = getattr(source, "scope", None)  # (an empty scope is falsy: test for None)
+        self.scope: SkeletonScope = scope if scope is not None else SkeletonScope(self.limits)
+        self._scope_forgotten = 0
+        self._numbering: "OrderedDict[str, Numbering]" = OrderedDict()
+        self._ended_labels: "OrderedDict[str, None]" = OrderedDict()
+        # layouts a replayed file brings (not announced by any producer)
+        self._replay_skeletons: dict[str, Skeleton] = dict(getattr(source, "skeletons", {}) or {})
+        backlog = getattr(source, "backlog", None)
+        self._max_age_ns = getattr(backlog, "max_age_ns", None)  # shedding policy of a ZeroMQ source
         self._stop = threading.Event()
         self._max_log_per_s = int(max_log_per_s)
         self._log_window = (0.0, 0)
@@ -214,110 +290,260 @@ class Service:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self.stop)
 
-    # ------------------------------------------------------------------ input
-    def _reject(self, reason: str, detail: str) -> None:
-        self.m.malformed.inc(reason=reason)
+    # ------------------------------------------------------------------ logging
+    def _log_limited(self, text: str, *args: object) -> None:
+        """One warning line, at most ``max_log_per_s`` per second (the rest are summed)."""
         now = time.monotonic()
         start, n = self._log_window
         if now - start >= 1.0:
             if self._suppressed:
-                log.warning("%d more malformed messages in the last second were counted but not logged", self._suppressed)
+                log.warning("%d more input problems in the last second were counted but not logged", self._suppressed)
             self._log_window, self._suppressed = (now, 0), 0
             start, n = now, 0
         if n < self._max_log_per_s:
-            log.warning("skipped malformed input (%s): %s", reason, detail)
+            log.warning(text, *args)
             self._log_window = (start, n + 1)
         else:
             self._suppressed += 1
 
-    def _handle(self, item) -> None:
-        if isinstance(item, Rejected):
-            self._reject(item.reason, item.detail)
-        elif isinstance(item, Announce):
-            self._skeletons[item.skeleton.name] = item.skeleton
-            self._announced[item.stream_id] = (item.skeleton, float(item.rate_hz))
-        elif isinstance(item, Frame):
-            self._handle_frame(item)
+    def _reject(self, reason: str, detail: str) -> None:
+        self.m.malformed.inc(reason=reason)
+        self._log_limited("skipped malformed input (%s): %s", reason, short(detail, 300)[1:-1])
 
-    def _stream_for(self, frame: SkeletonFrame, rate_hint: float | None) -> _Stream:
+    def _limit(self, limit: str, detail: str, n: int = 1) -> None:
+        self.m.limit_hits.inc(n, limit=limit)
+        self._log_limited("limit %s: %s", limit, short(detail, 300)[1:-1])
+
+    # ------------------------------------------------------------------ input
+    def _handle(self, item) -> None:
+        if isinstance(item, Frame):
+            self._handle_frame(item)
+        elif isinstance(item, Rejected):
+            self._reject(item.reason, item.detail)
+        elif isinstance(item, Limited):
+            self._limit(item.limit, item.detail)
+        elif isinstance(item, Shed):
+            self._shed(item)
+        elif isinstance(item, Announce):
+            if not item.registered:
+                try:
+                    self.scope.announce(item.stream_id, item.skeleton, item.rate_hz)
+                except LimitHit as exc:
+                    self._limit(exc.limit, exc.detail)
+
+    def _shed(self, item: Shed) -> None:
+        self.m.shed.inc(item.count, reason=item.reason)
+        st = self.streams.get(item.stream_id) if item.stream_id is not None else None
+        if st is not None:
+            st.dropped += item.count
+        if item.reason == "shutdown":
+            log.warning("shutdown: %d input frames of stream %s were received but not processed (dropped)",
+                        item.count, short(item.stream_id, 70))
+        else:
+            self._log_limited("overload: shed %d input frames of stream %s (backlog bound)",
+                              item.count, short(item.stream_id, 70))
+
+    def _skeleton_of(self, frame: SkeletonFrame) -> Skeleton | None:
+        return self.scope.table(frame.stream_id).get(frame.skeleton) or self._replay_skeletons.get(frame.skeleton)
+
+    def _numbering_of(self, stream_id: str) -> Numbering:
+        num = self._numbering.pop(stream_id, None) or Numbering()
+        self._numbering[stream_id] = num  # most recently used last
+        while len(self._numbering) > _MAX_NUMBERINGS:
+            self._numbering.popitem(last=False)
+        return num
+
+    def _stream_for(self, frame: SkeletonFrame, rate_hint: float | None) -> _Stream | None:
+        """The frame's stream, started or restarted as needed; None if the frame is skipped."""
         st = self.streams.get(frame.stream_id)
+        cause = None
         if st is not None:
             if st.skeleton.name != frame.skeleton:
-                self._retire(st, f"switched skeleton {st.skeleton.name} -> {frame.skeleton}")
+                cause, why = "skeleton_change", f"switched skeleton {st.skeleton.name} -> {short(frame.skeleton, 40)}"
             elif st.last_seq is not None and st.last_seq - int(frame.seq) > max(30, int(st.rate_hz)):
                 # seq jumped back by more than ~1 s: the sender restarted (the engine would
                 # otherwise skip every frame as late until seq caught up)
-                self._retire(st, f"restarted (seq {frame.seq} after {st.last_seq})")
+                cause, why = "producer_restart", f"restarted (seq {frame.seq} after {st.last_seq})"
             else:
                 return st
-        skeleton = self._skeletons.get(frame.skeleton) or get_skeleton(frame.skeleton)
-        ann = self._announced.get(frame.stream_id)
-        rate = rate_hint or (ann[1] if ann and ann[0].name == skeleton.name else None) or self.default_rate_hz
+            if st.restarted and time.monotonic_ns() - st.started_ns < self.limits.restart_cooldown_s * 1e9:
+                # two producers on one stream id would restart it on every frame: at most one
+                # restart per cooldown; the other frames are skipped (and counted)
+                self._limit("restart", f"stream {frame.stream_id!r} seq {frame.seq}: {why} within "
+                                       f"{self.limits.restart_cooldown_s:g} s of its last start (duplicate producer?)")
+                return None
+            self._retire(st, why)
+        elif len(self.streams) >= self.limits.max_streams:
+            self._limit("streams", f"stream {short(frame.stream_id, 70)}: {len(self.streams)} streams are "
+                                   f"running, at most {self.limits.max_streams} (serve --max-streams)")
+            return None
+        skeleton = self._skeleton_of(frame) or get_skeleton(frame.skeleton)
+        rate = rate_hint or self.scope.rate(frame.stream_id, skeleton.name) or self.default_rate_hz
+        try:
+            rate = check_rate(frame.stream_id, rate, self.limits)
+        except LimitHit as exc:
+            self._limit(exc.limit, exc.detail)
+            return None
         try:
             engine = self.make_engine(skeleton, float(rate))
         except ValueError as exc:  # e.g. a window too short for this stream's rate
-            raise BadInput("invalid", f"stream {frame.stream_id!r}: cannot start an engine: {exc}") from None
-        st = _Stream(frame.stream_id, skeleton, float(rate), engine)
+            self._reject("invalid", f"stream {frame.stream_id!r}: cannot start an engine: {exc}")
+            return None
+        numbering = self._numbering_of(frame.stream_id)
+        numbering.restart()
+        if cause is not None:
+            self.m.restarts.inc(cause=cause)
+        st = _Stream(frame.stream_id, skeleton, float(rate), engine, numbering=numbering,
+                     started_ns=time.monotonic_ns(), restarted=cause is not None)
         try:
             st.lookahead = int(engine.metrics().get("lookahead_frames", 0))
         except Exception:
             st.lookahead = 0
         self.streams[frame.stream_id] = st
+        self.scope.activate(frame.stream_id)
+        self._ended_labels.pop(frame.stream_id, None)
         self.publisher.announce(frame.stream_id, skeleton, float(rate))
-        log.info("new stream %r: skeleton %s (%d joints), %.3g Hz", frame.stream_id, skeleton.name, skeleton.n_joints, rate)
+        log.info("new stream %r: skeleton %s (%d joints), %.3g Hz, epoch %d",
+                 frame.stream_id, skeleton.name, skeleton.n_joints, rate, numbering.epoch)
         return st
 
-    def _retire(self, st: _Stream, why: str, level: int = logging.WARNING) -> None:
-        """Flush and close a stream's engine (its pending frames still go out)."""
-        log.log(level, "stream %r %s: flushing its engine", st.stream_id, why)
-        self._publish_outputs(st, self._engine_flush(st))
-        close = getattr(st.engine, "close", None)
-        if close is not None:
-            close()
-        del self.streams[st.stream_id]
+    def _retire(self, st: _Stream, why: str, level: int = logging.WARNING, *, flush: bool = True) -> None:
+        """Flush (unless failed) and close a stream's engine; its pending frames still go out."""
+        log.log(level, "stream %r %s: %s its engine", st.stream_id, why, "flushing" if flush else "discarding")
+        if self.streams.get(st.stream_id) is st:
+            del self.streams[st.stream_id]
+        if flush:
+            self._guard(st, "flush", lambda: self._publish_outputs(st, self._engine_flush(st)))
+        try:
+            close = getattr(st.engine, "close", None)
+            if close is not None:
+                close()
+        except Exception as exc:  # closing must not take the service down either
+            log.warning("stream %r: closing its engine failed: %s", st.stream_id, exc)
+
+    def _reclaim(self, st: _Stream, why: str) -> None:
+        """A stream ended: retire it and forget its layouts, meta repeats and (eventually) labels."""
+        self._retire(st, why, logging.INFO)
+        self.scope.forget(st.stream_id)
+        self.publisher.forget(st.stream_id)
+        self._ended_labels[st.stream_id] = None
+        while len(self._ended_labels) > _MAX_STREAM_LABELS:
+            old, _ = self._ended_labels.popitem(last=False)
+            self.m.frames_in.remove(stream=old)
+
+    def _guard(self, st: _Stream, stage: str, fn: Callable[[], None]) -> bool:
+        """Run one stream's step; an exception is contained (:meth:`_fail`). True if it ran."""
+        try:
+            fn()
+            return True
+        except Exception as exc:  # MemoryError included: contained to this stream
+            self._fail(st, stage, exc)
+            return False
+
+    def _fail(self, st: _Stream, stage: str, exc: BaseException) -> None:
+        """Count and log a stream's failure; discard its engine (the next frame starts a new epoch)."""
+        self.m.failures.inc(stage=stage)
+        self._log_limited("stream %r failed in %s (%s: %s); its engine is discarded, its next frame "
+                          "starts it afresh", st.stream_id, stage, type(exc).__name__, short(str(exc), 200)[1:-1])
+        if stage != "flush" and self.streams.get(st.stream_id) is st:
+            self._retire(st, f"failed in {stage}", flush=False)
+            self.m.restarts.inc(cause="failure")
+
+    def _admit_bodies(self, st: _Stream, frame: SkeletonFrame) -> None:
+        """Drop bodies with new ids beyond the per-stream / total limits (counted)."""
+        t = int(frame.sensor_time_ns)
+        st.newest_t_ns = t if st.newest_t_ns is None else max(st.newest_t_ns, t)
+        ttl = self.limits.body_ttl_s * 1e9
+        seen = st.body_seen
+        if len(seen) >= self.limits.max_bodies_per_stream // 2:  # prune only when it matters
+            for bid in [b for b, tb in seen.items() if st.newest_t_ns - tb > ttl]:
+                del seen[bid]
+        kept = []
+        refused = 0
+        cost = st.skeleton.n_joints * st.rate_hz  # joint-samples per second one more body adds
+        for body in frame.bodies:
+            if body.body_id not in seen:
+                total = sum(len(s.body_seen) for s in self.streams.values())
+                load = sum(len(s.body_seen) * s.skeleton.n_joints * s.rate_hz for s in self.streams.values())
+                if (len(seen) >= self.limits.max_bodies_per_stream or total >= self.limits.max_bodies_total
+                        or load + cost > self.limits.max_joint_rate):
+                    refused += 1
+                    continue
+            seen[body.body_id] = t
+            kept.append(body)
+        if refused:
+            frame.bodies = kept
+            self._limit("bodies_stream", f"stream {frame.stream_id!r} seq {frame.seq}: {refused} new body ids "
+                                         f"refused ({len(seen)} tracked, at most {self.limits.max_bodies_per_stream} "
+                                         f"per stream, {self.limits.max_bodies_total} in all, and "
+                                         f"{self.limits.max_joint_rate:g} joints x Hz in all)", refused)
 
     def _handle_frame(self, item: Frame) -> None:
         frame = item.frame
+        if self._max_age_ns is not None and time.monotonic_ns() - item.arrival_ns > self._max_age_ns:
+            # it waited beyond the backlog bound while earlier frames were handled: shed it too
+            self._shed(Shed(frame.stream_id, 1))
+            return
         try:
             check_stream_id(frame.stream_id)
-            frame, nonfinite = validate_frame(frame, self._skeletons)
+            if len(frame.bodies) > self.limits.max_bodies_per_frame:
+                raise LimitHit("bodies_frame", f"stream {frame.stream_id!r} seq {frame.seq}: {len(frame.bodies)} "
+                                               f"bodies, at most {self.limits.max_bodies_per_frame}")
+            skel = self._skeleton_of(frame)
+            frame, nonfinite = validate_frame(frame, {skel.name: skel} if skel is not None else None)
         except WireError as exc:
             self._reject("invalid", str(exc))
             return
         except BadInput as exc:
             self._reject(exc.reason, exc.detail)
             return
+        except LimitHit as exc:
+            self._limit(exc.limit, exc.detail)
+            return
         if nonfinite:
             self.m.nonfinite.inc(nonfinite)
-        try:
-            st = self._stream_for(frame, item.rate_hz)
-        except BadInput as exc:
-            self._reject(exc.reason, exc.detail)
+        far = limit_coordinates(frame, self.limits.max_coordinate_m)
+        if far:
+            self._limit("coordinate", f"stream {frame.stream_id!r} seq {frame.seq}: {far} joints beyond "
+                                      f"{self.limits.max_coordinate_m:g} m treated as missing", far)
+        st = self._stream_for(frame, item.rate_hz)
+        if st is None:
             return
+        self._admit_bodies(st, frame)
         t0 = time.perf_counter()
         try:
-            outputs = st.engine.push(frame)
+            # after shed input the gap is the service's doing: filling it would redo the work shed
+            outputs = st.engine.push(frame, fill=False) if st.dropped else st.engine.push(frame)
         except ValueError as exc:  # the engine refused the frame (e.g. a duplicate body id)
             self._reject("invalid", str(exc))
             return
+        except Exception as exc:  # contained: counted, this stream restarts
+            self._fail(st, "engine", exc)
+            return
         compute = time.perf_counter() - t0
         self.m.frames_in.inc(stream=frame.stream_id)
-        self.publisher.publish("raw", frame)
         st.frames += 1
         st.last_active_ns = time.monotonic_ns()  # handled now (it may have waited in the socket)
         st.last_seq = int(frame.seq)
         st.bodies = len(frame.bodies)
+        if not self._guard(st, "output", lambda: self.publisher.publish("raw", frame)):
+            return
         if outputs:  # an accepted frame always has its live output; a late one has none
             st.note_arrival(int(frame.sensor_time_ns), item.arrival_ns)
             self.m.live_compute.observe(compute)
-        self._publish_outputs(st, outputs)
+        self._guard(st, "output", lambda: self._publish_outputs(st, outputs))
 
     # ------------------------------------------------------------------ output
     def _publish_outputs(self, st: _Stream, outputs) -> None:
+        """Number (epoch, seq) and publish a stream's outputs; observe latencies from arrival."""
         if not outputs:
             return
         for kind, out in outputs:
-            self.publisher.publish(kind, out)
+            epoch, seq = st.numbering.wire(int(out.seq))
+            dropped = 0
+            if kind == "live" and st.dropped:
+                dropped, st.dropped = st.dropped, 0
+            self.publisher.publish(kind, dataclasses.replace(out, seq=seq, epoch=epoch, dropped=dropped))
             if out.filled:
                 if kind == "clean":
                     self.m.filled.inc()
@@ -336,19 +562,19 @@ class Service:
                     self.m.clean_compute.observe(max(0.0, (now - trigger) / 1e9))
 
     def _retire_idle(self) -> None:
-        """Flush streams that sent nothing for ``idle_timeout_s``: their last frames come out."""
+        """Reclaim streams that sent nothing for ``idle_timeout_s``: their last frames come out."""
         if self.idle_timeout_s <= 0:
             return
         now = time.monotonic_ns()
         for st in list(self.streams.values()):
             if now - st.last_active_ns > self.idle_timeout_s * 1e9:
-                self._retire(st, f"sent nothing for {self.idle_timeout_s:g} s", logging.INFO)
+                self._reclaim(st, f"sent nothing for {self.idle_timeout_s:g} s")
 
     def _poll_engines(self) -> None:
-        for st in self.streams.values():
+        for st in list(self.streams.values()):
             poll = getattr(st.engine, "poll", None)
             if poll is not None:
-                self._publish_outputs(st, poll())
+                self._guard(st, "engine", lambda: self._publish_outputs(st, poll()))
 
     def _sync_counters(self) -> None:
         for kind in ("raw", "live", "clean", "meta"):
@@ -360,6 +586,18 @@ class Service:
             delta = dropped - self.m.drops.value(topic=kind)
             if delta > 0:
                 self.m.drops.inc(delta, topic=kind)
+        forgotten = self.scope.forgotten - self._scope_forgotten
+        if forgotten > 0:
+            self.m.limit_hits.inc(forgotten, limit="announcements")
+            self._scope_forgotten = self.scope.forgotten
+        cut = getattr(self.source, "disconnects", 0) - self.m.disconnects.value()
+        if cut > 0:
+            self.m.disconnects.inc(cut)
+        pending = getattr(self.source, "pending", None)
+        if pending is not None:
+            n, age = pending()
+            self.m.backlog.set(n)
+            self.m.backlog_age.set(age)
         self.m.bodies.set(sum(st.bodies for st in self.streams.values()))
         self.m.streams.set(len(self.streams))
         degraded, level = False, 0
@@ -383,13 +621,15 @@ class Service:
         self.m.degrade_level.set(level)
 
     def status_line(self) -> str:
-        """One line: uptime, input rate, outputs, malformed, drops, bodies, latencies, degraded."""
+        """One line: uptime, input rate, outputs, malformed, limits, shed, drops, bodies, latencies, degraded."""
         now = time.monotonic()
         total_in = int(sum(self.m.frames_in.values().values()))
         t_prev, n_prev = self._last_status
         rate = (total_in - n_prev) / max(now - t_prev, 1e-9)
         self._last_status = (now, total_in)
         malformed = sum(self.m.malformed.values().values())
+        limits = sum(self.m.limit_hits.values().values())
+        shed = sum(self.m.shed.values().values())
         drops = sum(self.m.drops.values().values())
 
         def ms(h) -> str:
@@ -399,8 +639,8 @@ class Service:
         return (
             f"streamfix serve: up {now - self._started:.0f}s | in {total_in} ({rate:.1f}/s) | "
             f"live {self.m.frames_out.value(topic='live'):.0f} clean {self.m.frames_out.value(topic='clean'):.0f} | "
-            f"malformed {malformed:.0f} | drops {drops:.0f} | streams {len(self.streams)} "
-            f"bodies {self.m.bodies.value():.0f} | live p99 {ms(self.m.live_compute)} "
+            f"malformed {malformed:.0f} | limits {limits:.0f} | shed {shed:.0f} | drops {drops:.0f} | "
+            f"streams {len(self.streams)} bodies {self.m.bodies.value():.0f} | live p99 {ms(self.m.live_latency)} "
             f"clean+ p99 {ms(self.m.clean_compute)} | degraded {'YES' if self.m.degraded.value() else 'no'}"
         )
 
@@ -424,7 +664,7 @@ class Service:
                     self._handle(item)
                 self._poll_engines()
                 now = time.monotonic()
-                self.publisher.tick(now)
+                self._guard_tick(now)
                 if now >= next_sync:
                     if not items:  # only with the input drained: a busy service is not an idle stream
                         self._retire_idle()
@@ -444,8 +684,15 @@ class Service:
             self.close()
         return 0
 
+    def _guard_tick(self, now: float) -> None:
+        try:
+            self.publisher.tick(now)
+        except Exception as exc:  # a meta message that cannot be sent must not stop the loop
+            self.m.failures.inc(stage="output")
+            self._log_limited("repeating skeleton messages failed: %s", short(str(exc), 200))
+
     def _drain(self, timeout_s: float) -> None:
-        """Handle what the source already holds (no waiting for new input)."""
+        """Handle what the source already holds, for at most ``timeout_s``; count the rest as shed."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             items = self.source.poll(0.0)
@@ -453,14 +700,21 @@ class Service:
                 break
             for item in items:
                 self._handle(item)
+        drop = getattr(self.source, "drop_pending", None)
+        if drop is not None:
+            for item in drop():
+                self._handle(item)
 
     def _flush(self) -> None:
-        for st in self.streams.values():
+        for st in list(self.streams.values()):
             self._poll_engines()
-            self._publish_outputs(st, self._engine_flush(st))
-            close = getattr(st.engine, "close", None)
-            if close is not None:
-                close()
+            self._guard(st, "flush", lambda: self._publish_outputs(st, self._engine_flush(st)))
+            try:
+                close = getattr(st.engine, "close", None)
+                if close is not None:
+                    close()
+            except Exception as exc:
+                log.warning("stream %r: closing its engine failed: %s", st.stream_id, exc)
 
     def _engine_flush(self, st: _Stream):
         return st.engine.flush(timeout=self.flush_timeout_s)

@@ -12,8 +12,11 @@
     the sender or the service starts first. Each message is either ``[topic,
     payload]`` (as published on ``sf/raw/<stream>``) or just ``[payload]``; the
     payload is a wire ``frame`` message or a ``skeleton`` message (which announces a
-    skeleton that is not in the registry, e.g. one read from a BVH file). Several
-    senders may connect at once; ZeroMQ fair-queues them.
+    skeleton that is not in the registry, e.g. one read from a BVH file, for the
+    announcing stream only). Several senders may connect at once; ZeroMQ fair-queues
+    them. A receiver thread stamps each message's arrival and keeps it in a bounded
+    :class:`Backlog` (overload policy ``shed`` or ``block``); with CURVE
+    (:mod:`streamfix.transport.curve`) only producers holding an allowed key connect.
 ``stdin``
     Kinect v2 CSV or JSON lines, one frame per line (see
     :mod:`streamfix.service.textin`). The stream ends at end of file.
@@ -23,8 +26,10 @@
     looped; see :mod:`streamfix.service.playback`.
 
 Every source offers ``poll(timeout_s) -> list[Item]`` (returns at most after
-``timeout_s``; items are :class:`Frame`, :class:`Announce` or :class:`Rejected`),
-``exhausted`` (no more input will come) and ``close()``. Sources never raise on bad
+``timeout_s``; items are :class:`Frame`, :class:`Announce`, :class:`Rejected`,
+:class:`Limited` or :class:`Shed`), ``exhausted`` (no more input will come) and
+``close()``; the ZeroMQ source also ``pending()`` (backlog depth and age) and
+``drop_pending()`` (shutdown: count what is left). Sources never raise on bad
 input: a bad message becomes a :class:`Rejected` item carrying the reason, so the
 service counts it and carries on.
 """
@@ -35,21 +40,27 @@ import queue
 import sys
 import threading
 import time
+from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Union
 
 from ..frames import SkeletonFrame
 from ..skeletons import Skeleton
+from .limits import Limits
 from .playback import Pacer, open_playback
+from .scope import SkeletonScope
 from .textin import parse_line
-from .validate import BadInput
+from .validate import BadInput, LimitHit
 
 __all__ = [
     "Frame",
     "Announce",
     "Rejected",
+    "Shed",
+    "Limited",
     "Item",
+    "Backlog",
     "ZmqSource",
     "StdinSource",
     "ReplaySource",
@@ -75,6 +86,7 @@ class Announce:
     stream_id: str
     skeleton: Skeleton
     rate_hz: float
+    registered: bool = False  # already checked and stored in the source's SkeletonScope
 
 
 @dataclass
@@ -84,8 +96,6 @@ class Rejected:
     reason: str
     detail: str
 
-
-Item = Union[Frame, Announce, Rejected]
 
 # WireError.reason -> service reason (the label of streamfix_malformed_total).
 _WIRE_REASONS = {
@@ -107,60 +117,262 @@ def wire_reason(exc: Exception) -> str:
     return reason
 
 
-class ZmqSource:
-    """PULL socket bound at ``endpoint``; decodes wire messages (see module docstring)."""
+@dataclass
+class Shed:
+    """Input frames of one stream dropped before decoding (overload or shutdown), counted."""
 
-    def __init__(self, endpoint: str, *, context=None, rcvhwm: int = 10000, max_batch: int = 256) -> None:
+    stream_id: str | None  # None: messages without a topic, stream unknown
+    count: int
+    reason: str = "backlog"
+
+
+@dataclass
+class Limited:
+    """A message over a resource limit (``limits.LIMITS``), skipped and counted."""
+
+    limit: str
+    detail: str
+
+
+Item = Union[Frame, Announce, Rejected, Shed, Limited]
+
+
+class Backlog:
+    """Received input waiting for the service loop, bounded by count and age.
+
+    A receiver thread appends every message with its **arrival time** (monotonic ns, as
+    soon as it left the socket), so latencies are measured from arrival even while the
+    loop is busy. Policy ``shed`` (the default, for live sensors): when more than
+    ``max_frames`` frames wait, or the oldest has waited longer than ``max_age_s``, the
+    oldest frames are dropped and counted per stream, so the live output stays current.
+    Policy ``block`` (for bulk producers that must lose nothing, e.g. ``replay --rate
+    0``): the receiver stops taking messages at ``max_frames``, ZeroMQ's queues fill and
+    the producer's PUSH blocks (back-pressure); nothing is shed and latency grows
+    instead. Skeleton messages are never shed (they are few and frames need them).
+    """
+
+    POLICIES = ("shed", "block")
+
+    def __init__(self, max_frames: int = 2000, max_age_s: float = 0.05, policy: str = "shed") -> None:
+        if max_frames < 1 or not max_age_s > 0:
+            raise ValueError(f"backlog bounds must be >= 1 frame and > 0 s, got {max_frames}, {max_age_s}")
+        if policy not in self.POLICIES:
+            raise ValueError(f"overload policy {policy!r}: expected one of {', '.join(self.POLICIES)}")
+        self.policy = policy
+        self.max_frames = int(max_frames)
+        self.max_age_ns = int(max_age_s * 1e9) if policy == "shed" else None
+        self._items: deque = deque()  # (parts, arrival_ns, stream or None, is_meta)
+        self._meta: deque = deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self.shed: Counter = Counter()  # stream (None = unknown) -> frames shed, not yet reported
+        self.shed_total = 0
+
+    @staticmethod
+    def _stream_of(parts: list) -> tuple[str | None, bool]:
+        if len(parts) == 2:
+            topic = bytes(parts[0])
+            if topic.startswith(b"sf/meta/"):
+                return topic[8:].decode("ascii", "replace"), True
+            kind, _, stream = topic[3:].partition(b"/")
+            return stream.decode("ascii", "replace") or None, False
+        return None, False
+
+    def put(self, parts: list, arrival_ns: int) -> None:
+        """Append one message (receiver thread); under ``block`` wait while the backlog is full."""
+        stream, meta = self._stream_of(parts)
+        with self._cond:
+            while self.max_age_ns is None and len(self._items) + len(self._meta) >= self.max_frames and not self._closed:
+                self._cond.wait(0.1)
+            if meta:
+                if self.max_age_ns is not None and len(self._meta) >= self.max_frames:  # a flood of them
+                    self.shed[self._meta.popleft()[2]] += 1
+                    self.shed_total += 1
+                self._meta.append((parts, arrival_ns, stream, True))
+            else:
+                self._items.append((parts, arrival_ns, stream, False))
+                self._trim(arrival_ns)
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def _trim(self, now_ns: int) -> None:
+        if self.max_age_ns is None:
+            return
+        items = self._items
+        while items and (len(items) > self.max_frames or now_ns - items[0][1] > self.max_age_ns):
+            _, _, stream, _ = items.popleft()
+            self.shed[stream] += 1
+            self.shed_total += 1
+
+    def take(self, timeout_s: float, max_n: int) -> tuple[list, dict]:
+        """Up to ``max_n`` messages (skeleton messages first) and the shed counts since the last call."""
+        with self._cond:
+            if not self._items and not self._meta and timeout_s > 0:
+                self._cond.wait(timeout_s)
+            self._trim(time.monotonic_ns())
+            out = []
+            while self._meta and len(out) < max_n:
+                out.append(self._meta.popleft())
+            while self._items and len(out) < max_n:
+                out.append(self._items.popleft())
+            shed, self.shed = dict(self.shed), Counter()
+            self._cond.notify_all()  # a blocked receiver may go on
+        return out, shed
+
+    def drop_all(self) -> dict:
+        """Empty the backlog (shutdown): the counts of what was dropped, per stream."""
+        with self._cond:
+            for _, _, stream, meta in self._items:
+                self.shed[stream] += 1
+            self.shed_total += len(self._items)
+            self._items.clear()
+            self._meta.clear()
+            shed, self.shed = dict(self.shed), Counter()
+        return shed
+
+    def depth(self) -> tuple[int, float]:
+        """(frames waiting, age of the oldest in seconds)."""
+        with self._cond:
+            n = len(self._items) + len(self._meta)
+            oldest = self._items[0][1] if self._items else None
+        return n, 0.0 if oldest is None else (time.monotonic_ns() - oldest) / 1e9
+
+
+class ZmqSource:
+    """PULL socket bound at ``endpoint``; decodes wire messages (see module docstring).
+
+    A daemon thread receives (so arrival times are true under load) into a
+    :class:`Backlog`; :meth:`poll` decodes on the caller's thread. Messages over
+    ``limits.max_message_bytes`` are skipped before decoding (counted); ZeroMQ's
+    ``MAXMSGSIZE`` (16 x that) disconnects a peer sending anything larger, so no single
+    message can make the service allocate more. ``curve``: a
+    :class:`~streamfix.transport.curve.CurveServer` to authenticate producers.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        context=None,
+        rcvhwm: int = 10000,
+        max_batch: int = 32,
+        limits: Limits | None = None,
+        backlog: Backlog | None = None,
+        scope: SkeletonScope | None = None,
+        curve=None,
+    ) -> None:
         import zmq
 
         from ..transport import wire
 
         self._zmq = zmq
         self._wire = wire
+        self.limits = limits or Limits()
+        self.scope = scope if scope is not None else SkeletonScope(self.limits)
+        self.backlog = backlog or Backlog()
         self._ctx = context or zmq.Context.instance()
         self.sock = self._ctx.socket(zmq.PULL)
         self.sock.setsockopt(zmq.RCVHWM, int(rcvhwm))
         self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.MAXMSGSIZE, 16 * int(self.limits.max_message_bytes))
+        if curve is not None:
+            curve.apply(self.sock)
         self.sock.bind(endpoint)
         self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
-        self._poller = zmq.Poller()
-        self._poller.register(self.sock, zmq.POLLIN)
         self._max_batch = int(max_batch)
-        self.skeletons: dict[str, Skeleton] = {}
         self.exhausted = False  # a bound socket never ends by itself
+        # producers cut off: gone away, or over MAXMSGSIZE (libzmq drops the message and the connection)
+        self.disconnects = 0
+        self._monitor = self.sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
+        self._running = True
+        self._thread = threading.Thread(target=self._receive, name="zmq-source", daemon=True)
+        self._thread.start()
 
     def describe(self) -> str:
         return f"zmq PULL bound at {self.endpoint}"
 
-    def _decode(self, parts: list[bytes]) -> Item:
+    def _receive(self) -> None:
+        zmq = self._zmq
+        poller = zmq.Poller()
+        poller.register(self.sock, zmq.POLLIN)
+        poller.register(self._monitor, zmq.POLLIN)
+        while self._running:
+            try:
+                ready = dict(poller.poll(50))
+                if self._monitor in ready:
+                    while self._monitor.poll(0):
+                        self._monitor.recv_multipart()
+                        self.disconnects += 1
+                if self.sock not in ready:
+                    continue
+                for _ in range(1024):
+                    parts = self.sock.recv_multipart(zmq.NOBLOCK, copy=True)
+                    self.backlog.put(parts, time.monotonic_ns())
+            except zmq.Again:
+                continue
+            except zmq.ZMQError:  # socket closed under us: the service is stopping
+                return
+
+    def _decode(self, parts: list[bytes], arrival_ns: int) -> Item:
         wire = self._wire
         if not parts or len(parts) > 2:
             return Rejected("garbage", f"message has {len(parts)} ZeroMQ frames, expected [topic, payload] or [payload]")
         payload = parts[-1]
+        if len(payload) > self.limits.max_message_bytes:
+            return Limited("message_size", f"message of {len(payload)} bytes, at most "
+                                           f"{self.limits.max_message_bytes} (serve --max-message-bytes)")
         try:
-            msg = wire.decode_message(payload, self.skeletons)
+            msg = wire.decode_message(payload, self.scope.table)
         except wire.WireError as exc:
             return Rejected(wire_reason(exc), str(exc))
         if isinstance(msg, SkeletonFrame):
-            return Frame(msg, time.monotonic_ns())
-        # a skeleton message: learn the layout so frames naming it decode
-        self.skeletons[msg.skeleton.name] = msg.skeleton
-        return Announce(msg.stream_id, msg.skeleton, msg.rate_hz)
+            return Frame(msg, arrival_ns)
+        # a skeleton message: learn the layout (for this stream only) so its frames decode
+        try:
+            self.scope.announce(msg.stream_id, msg.skeleton, msg.rate_hz)
+        except LimitHit as exc:
+            return Limited(exc.limit, exc.detail)
+        return Announce(msg.stream_id, msg.skeleton, msg.rate_hz, registered=True)
 
     def poll(self, timeout_s: float) -> list[Item]:
-        zmq = self._zmq
-        items: list[Item] = []
-        if not self._poller.poll(max(0, int(timeout_s * 1000))):
-            return items
-        while len(items) < self._max_batch:
-            try:
-                parts = self.sock.recv_multipart(zmq.NOBLOCK, copy=True)
-            except zmq.Again:
-                break
-            items.append(self._decode(parts))
+        got, shed = self.backlog.take(max(0.0, timeout_s), self._max_batch)
+        items: list[Item] = [Shed(stream, n) for stream, n in shed.items()]
+        items.extend(self._decode(parts, arrival) for parts, arrival, _, _ in got)
         return items
 
+    def pending(self) -> tuple[int, float]:
+        """Input waiting to be handled: (messages, age of the oldest in seconds)."""
+        return self.backlog.depth()
+
+    def drop_pending(self) -> list[Item]:
+        """Give up on what still waits (shutdown): stop receiving, then count what the backlog
+        and the socket's queue still hold, one :class:`Shed` per stream."""
+        self._running = False
+        self.backlog.close()
+        self._thread.join(timeout=1.0)
+        counts = Counter(self.backlog.drop_all())
+        zmq = self._zmq
+        try:
+            while True:
+                parts = self.sock.recv_multipart(zmq.NOBLOCK)
+                stream, meta = Backlog._stream_of(parts)
+                if not meta:
+                    counts[stream] += 1
+        except zmq.ZMQError:  # Again: the queue is empty
+            pass
+        return [Shed(stream, n, "shutdown") for stream, n in counts.items()]
+
     def close(self) -> None:
+        self._running = False
+        self.backlog.close()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
+        self.sock.disable_monitor()
+        self._monitor.close(linger=0)
         self.sock.close(linger=0)
 
 
@@ -296,8 +508,10 @@ def default_replay_file(project_root: Path | None = None) -> Path:
     )
 
 
-def open_source(spec: str, *, rate: float = 1.0, loop: bool = False, stream_id: str | None = None, context=None):
-    """Open the source named by ``--source`` (see module docstring)."""
+def open_source(spec: str, *, rate: float = 1.0, loop: bool = False, stream_id: str | None = None, context=None,
+                **zmq_options):
+    """Open the source named by ``--source`` (see module docstring); ``zmq_options`` go to
+    :class:`ZmqSource` (limits, backlog, curve)."""
     if spec == "stdin" or spec == "-":
         return StdinSource(stream_id=stream_id or "stdin")
     if spec.startswith("replay:"):
@@ -306,7 +520,7 @@ def open_source(spec: str, *, rate: float = 1.0, loop: bool = False, stream_id: 
             raise FileNotFoundError(f"--source replay:{path}: no such file")
         return ReplaySource(path, rate=rate, loop=loop, stream_id=stream_id)
     if "://" in spec:
-        return ZmqSource(spec, context=context)
+        return ZmqSource(spec, context=context, **zmq_options)
     raise ValueError(
         f"--source {spec!r} is not understood; expected tcp://HOST:PORT (bound PULL), stdin, or replay:FILE"
     )

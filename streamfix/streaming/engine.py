@@ -637,8 +637,12 @@ class StreamEngine:
             self._thread.start()
 
     # ------------------------------------------------------------------ public API
-    def push(self, frame: SkeletonFrame) -> list[tuple[str, SkeletonFrame]]:
-        """Feed one input frame; returns live (always) and clean (when due) frames."""
+    def push(self, frame: SkeletonFrame, fill: bool = True) -> list[tuple[str, SkeletonFrame]]:
+        """Feed one input frame; returns live (always) and clean (when due) frames.
+
+        ``fill=False``: the frames before this one were shed by the service under
+        overload, so the timestamp gap is neither filled nor a discontinuity.
+        """
         self._validate(frame)
         out: list[tuple[str, SkeletonFrame]] = []
         st = self.streams.get(frame.stream_id)
@@ -649,7 +653,7 @@ class StreamEngine:
             return out
         self.counters["frames_in"] += 1
         # ---- dropped sensor frames
-        if st.last_time_ns is not None and self.cfg.fill_drops:
+        if st.last_time_ns is not None and self.cfg.fill_drops and fill:
             gap_ns = int(frame.sensor_time_ns) - st.last_time_ns
             if gap_ns > self.cfg.drop_gap_factor * self.period_ns:
                 if gap_ns > self.cfg.max_fill_s * 1e9:

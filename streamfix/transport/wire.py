@@ -11,7 +11,12 @@ Frame message (``type == "frame"``)::
 
     {"v": 1, "type": "frame", "stream": str, "seq": uint, "t_sensor_ns": int,
      "t_publish_ns": int, "skeleton": str, "joints": J, "filled": bool,
-     "bodies": [{"id": int, "pos": bin(J*3*4), "conf": bin(J*4), "rec": bin(J)?}, ...]}
+     "bodies": [{"id": int, "pos": bin(J*3*4), "conf": bin(J*4), "rec": bin(J)?}, ...],
+     "epoch": uint?, "dropped": uint?}
+
+``epoch`` (service output) names the run of ``seq`` numbering the frame belongs to and
+``dropped`` counts input frames shed under overload just before it; both are optional
+additions to version 1, written only when non-zero.
 
 Skeleton message (``type == "skeleton"``, topic ``sf/meta/<stream>``)::
 
@@ -27,7 +32,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Mapping, Union
+from typing import Callable, Mapping, Optional, Union
 
 import msgpack
 import numpy as np
@@ -61,10 +66,28 @@ TOPIC_ROOT = b"sf/"
 KINDS = ("raw", "live", "clean", "meta")
 """Topic kinds: sensor input, low-latency output, refined output, skeleton messages."""
 
+SkeletonTables = Optional[Union[Mapping[str, Skeleton], Callable[[str], Mapping[str, Skeleton]]]]
+"""Where a decoder looks up announced skeletons: one map, or one map per stream id."""
+
 _STREAM_RE = re.compile(r"^[A-Za-z0-9_.:\-]{1,64}$")
 _F32 = np.dtype("<f4")
 _MAX_JOINTS = 1024
 _MAX_BODIES = 64
+_MAX_MAP_LEN = 256       # keys in any map (a frame has 10, a body 4; room for unknown keys)
+_MAX_ARRAY_LEN = 4 * _MAX_JOINTS  # joint names, bones (a skeleton of 1024 joints), bodies
+
+
+def _head_type(head: int) -> str:
+    """What a msgpack value starting with byte ``head`` is (for error messages)."""
+    if head <= 0x7F or head >= 0xE0 or 0xCC <= head <= 0xD3:
+        return "an integer"
+    if 0x90 <= head <= 0x9F or head in (0xDC, 0xDD):
+        return "an array"
+    if 0xA0 <= head <= 0xBF or 0xD9 <= head <= 0xDB:
+        return "a string"
+    names = {0xC0: "nil", 0xC2: "a boolean", 0xC3: "a boolean", 0xC4: "a binary blob", 0xC5: "a binary blob",
+             0xC6: "a binary blob", 0xCA: "a float", 0xCB: "a float"}
+    return names.get(head, "no valid msgpack value" if head == 0xC1 else "an extension type (not allowed)")
 
 
 class WireError(ValueError):
@@ -201,8 +224,13 @@ def encode_frame(frame: SkeletonFrame, *, publish_time_ns: int | None = None) ->
         "filled": bool(frame.filled),
         "bodies": out_bodies,
     }
-    if not 0 <= msg["seq"] < 2**64:
-        raise WireError(f"seq {msg['seq']} does not fit an unsigned 64-bit integer", "field")
+    for key in ("epoch", "dropped"):  # optional (SPEC 4.1): absent when 0
+        value = int(getattr(frame, key, 0) or 0)
+        if value:
+            msg[key] = value
+    for key in ("seq", "epoch", "dropped"):
+        if not 0 <= msg.get(key, 0) < _U64_LIMIT:
+            raise WireError(f"{key} {msg[key]} does not fit an unsigned 64-bit integer", "field")
     for key in ("t_sensor_ns", "t_publish_ns"):
         if not _I64_MIN <= msg[key] <= _I64_MAX:
             raise WireError(f"{key} {msg[key]} does not fit a signed 64-bit integer", "field")
@@ -240,8 +268,14 @@ def encode_skeleton_message(
 def _unpack(payload: bytes) -> dict:
     if not payload:
         raise WireError("payload is empty, expected a msgpack map", "garbage")
+    head = payload[0]
+    if not (0x80 <= head <= 0x8F or head in (0xDE, 0xDF)):  # decide before decoding a possible bomb
+        raise WireError(f"payload is not a msgpack map: its first byte 0x{head:02x} starts {_head_type(head)}",
+                        "garbage")
     try:
-        msg = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        # bounded containers: no valid message needs more, and a bomb fails at its first header
+        msg = msgpack.unpackb(payload, raw=False, strict_map_key=False, max_map_len=_MAX_MAP_LEN,
+                              max_array_len=_MAX_ARRAY_LEN)
     except msgpack.ExtraData as exc:
         raise WireError(
             f"payload of {len(payload)} bytes is not one msgpack map: a msgpack "
@@ -278,6 +312,17 @@ def _field(msg: dict, key: str, types, what: str):
 
 
 _I64_MIN, _I64_MAX = -(2**63), 2**63 - 1
+_U64_LIMIT = 2**64
+
+
+def _uint64_opt(msg: dict, key: str) -> int:
+    """An optional unsigned 64-bit integer field (0 when absent)."""
+    if key not in msg:
+        return 0
+    value = _field(msg, key, int, "a non-negative integer")
+    if not 0 <= value < _U64_LIMIT:
+        raise WireError(f"field {key!r} is {value}, outside the unsigned 64-bit range", "field")
+    return value
 
 
 def _int64(msg: dict, key: str) -> int:
@@ -344,17 +389,20 @@ def _stream_of(msg: dict, expected_type: str) -> str:
     return stream
 
 
-def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> SkeletonFrame:
+def _frame_from_map(msg: dict, skeletons: "SkeletonTables") -> SkeletonFrame:
     stream = _stream_of(msg, "frame")
     seq = _field(msg, "seq", int, "a non-negative integer")
     if seq < 0:
         raise WireError(f"field 'seq' is {seq}, expected a non-negative integer", "field")
+    epoch, dropped = _uint64_opt(msg, "epoch"), _uint64_opt(msg, "dropped")
     t_sensor = _int64(msg, "t_sensor_ns")
     t_pub = _int64(msg, "t_publish_ns")
     name = _field(msg, "skeleton", str, "a string")
     n_joints = _field(msg, "joints", int, "a non-negative integer")
     filled = _field(msg, "filled", bool, "a boolean")
     bodies_raw = _field(msg, "bodies", list, "an array")
+    if callable(skeletons):  # per-stream tables (the service scopes announcements to their stream)
+        skeletons = skeletons(stream)
     skeleton = _lookup_skeleton(name, skeletons)
     if bodies_raw and n_joints != skeleton.n_joints:
         raise WireError(
@@ -419,14 +467,18 @@ def _frame_from_map(msg: dict, skeletons: Mapping[str, Skeleton] | None) -> Skel
         bodies=bodies,
         publish_time_ns=t_pub,
         filled=filled,
+        epoch=epoch,
+        dropped=dropped,
     )
 
 
-def decode_frame(payload: bytes, skeletons: Mapping[str, Skeleton] | None = None) -> SkeletonFrame:
+def decode_frame(payload: bytes, skeletons: "SkeletonTables" = None) -> SkeletonFrame:
     """Decode a ``frame`` message; raises :class:`WireError` saying what is wrong.
 
-    ``skeletons`` maps skeleton names to layouts learned from skeleton messages; names
-    not in it are looked up in the registry (``streamfix.skeletons``).
+    ``skeletons`` maps skeleton names to layouts learned from skeleton messages, or is
+    a function of the frame's stream id returning such a map (layouts scoped to the
+    stream that announced them); names not in it are looked up in the registry
+    (``streamfix.skeletons``).
     """
     return _frame_from_map(_unpack(payload), skeletons)
 
@@ -463,7 +515,7 @@ def decode_skeleton_message(payload: bytes) -> SkeletonMessage:
 
 
 def decode_message(
-    payload: bytes, skeletons: Mapping[str, Skeleton] | None = None
+    payload: bytes, skeletons: "SkeletonTables" = None
 ) -> Union[SkeletonFrame, SkeletonMessage]:
     """Decode any message: a :class:`SkeletonFrame` or a :class:`SkeletonMessage`.
 

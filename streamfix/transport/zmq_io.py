@@ -80,6 +80,7 @@ class Subscriber:
     ``skeletons`` (name -> Skeleton) and ``stream_info`` (stream -> SkeletonMessage),
     so frames of skeletons outside the registry decode after the first repeat.
 
+    ``curve``: a :class:`~streamfix.transport.curve.CurveClient` for a CURVE service.
     ``counters``: ``received`` (multipart messages), ``frames``, ``skeletons``,
     ``filtered`` (other topics, PULL only),
     ``malformed`` (total skipped as bad), one key per :class:`WireError` reason
@@ -99,6 +100,7 @@ class Subscriber:
         rcvhwm: int = 100_000,
         learn_skeletons: bool = True,
         on_error: Callable[[bytes, WireError], None] | None = None,
+        curve=None,
     ) -> None:
         self.endpoint = endpoint
         self.prefixes = tuple(_as_bytes(p) for p in prefixes) or (b"",)
@@ -118,6 +120,8 @@ class Subscriber:
                 subs.add(topic_prefix("meta"))
             for p in subs:
                 self.socket.setsockopt(zmq.SUBSCRIBE, p)
+        if curve is not None:  # a streamfix.transport.curve CurveClient (or CurveServer when binding)
+            curve.apply(self.socket)
         if bind:
             self.socket.bind(endpoint)
             self.endpoint = self.socket.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -242,12 +246,15 @@ class FramePublisher:
         context: zmq.Context | None = None,
         sndhwm: int = 1000,
         meta_interval_s: float = DEFAULT_META_INTERVAL_S,
+        curve=None,
     ) -> None:
         self._own_context = context is None
         self.context = context or zmq.Context()
         self.socket = self.context.socket(socket_type)
         self.socket.setsockopt(zmq.SNDHWM, sndhwm)
         self.socket.setsockopt(zmq.LINGER, 2000)
+        if curve is not None:  # a streamfix.transport.curve CurveServer (bind) or CurveClient (connect)
+            curve.apply(self.socket)
         if bind:
             self.socket.bind(endpoint)
             self.endpoint = self.socket.getsockopt_string(zmq.LAST_ENDPOINT)
