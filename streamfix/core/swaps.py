@@ -5,16 +5,19 @@ hides the other (on UI-PRMD about one swap every 10 s per leg pair, lasting 5-17
 docs/SENSOR_ERRORS.md). Every joint of the limb then sits tens of centimetres from where
 it was a frame before. A smoother spreads that error out; it does not remove it.
 
-The test, per frame ``t`` and per mirror pair of limbs ``(A, B)`` (joints and their
-mirror images, :func:`streamfix.limbs.limb_groups`):
+The test, per mirror pair of limbs ``(A, B)`` (joints and their mirror images,
+:func:`streamfix.limbs.limb_groups`), looks for the *moments* a swap starts and ends:
 
-* a reference trajectory ``m`` = running median over ``window_s`` (longer than twice the
-  longest swap, so a swap is a minority of every median's samples);
-* ``keep(t)`` = mean distance of A's and B's joints to ``m``; ``swap(t)`` = the same
-  with A and B exchanged;
-* the frame is swapped back where ``swap < ratio * keep`` and ``keep > min_offset_m``:
-  the exchanged assignment explains the frame much better, and the current one is
-  grossly off (a leg crossing the other moves smoothly and keeps ``keep`` small).
+* each joint is predicted at constant velocity from the two frames before,
+  ``p(t) = 2 x(t-1) - x(t-2)`` (a walking foot moves 10+ cm a frame; a running median
+  cannot follow it, a prediction can);
+* ``keep(t)`` = mean distance of A's and B's joints to their own predictions,
+  ``cross(t)`` = the same with A and B exchanged; frame ``t`` *toggles* the labelling
+  where ``cross < ratio * keep`` and ``keep > min_offset_m`` (the exchanged labelling
+  continues the motion much better, and the current one jumps grossly);
+* a frame is swapped where an odd number of toggles came before it (a cumulative sum,
+  no loop over frames); a swapped stretch longer than ``max_swap_s`` is not believed
+  (a missed toggle would otherwise swap everything after it) and is left alone.
 
 Arrays: positions ``(T, J, 3)`` metres (NaN = missing, never swapped).
 """
@@ -24,7 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .filters import odd_window, running_median
 
 __all__ = ["SwapConfig", "undo_limb_swaps"]
 
@@ -33,9 +35,15 @@ __all__ = ["SwapConfig", "undo_limb_swaps"]
 class SwapConfig:
     """Knobs of :func:`undo_limb_swaps` (seconds, metres)."""
 
-    window_s: float = 1.0
-    min_offset_m: float = 0.05
+    min_offset_m: float = 0.08
     ratio: float = 0.5
+    max_swap_s: float = 0.7
+
+
+def _runs(active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.concatenate([[False], active, [False]]).astype(np.int8)
+    d = np.diff(a)
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
 def undo_limb_swaps(
@@ -50,21 +58,30 @@ def undo_limb_swaps(
     x = np.asarray(positions, dtype=np.float64)
     out = x.copy()
     mask = np.zeros(x.shape[:2], dtype=bool)
-    if x.shape[0] < 3 or not pairs:
+    T = x.shape[0]
+    if T < 4 or not pairs:
         return out, mask
-    ref = running_median(x, odd_window(cfg.window_s, rate_hz))
+    longest = max(1, int(round(cfg.max_swap_s * rate_hz)))
     for a, b in pairs:
         both = np.concatenate([a, b])
         mirrored = np.concatenate([b, a])
-        keep = np.linalg.norm(x[:, both] - ref[:, both], axis=2)  # (T, n)
-        swap = np.linalg.norm(x[:, mirrored] - ref[:, both], axis=2)
-        ok = np.isfinite(keep) & np.isfinite(swap)
-        n = ok.sum(axis=1)
-        k = np.where(ok, keep, 0.0).sum(axis=1) / np.maximum(n, 1)
-        s = np.where(ok, swap, 0.0).sum(axis=1) / np.maximum(n, 1)
-        flip = (n == len(both)) & (k > cfg.min_offset_m) & (s < cfg.ratio * k)
-        if flip.any():
-            rows = np.flatnonzero(flip)
+        pred = 2.0 * x[1:-1, both] - x[:-2, both]  # predicts frames 2..T-1
+        keep = np.linalg.norm(x[2:, both] - pred, axis=2)
+        cross = np.linalg.norm(x[2:, mirrored] - pred, axis=2)
+        ok = np.isfinite(keep).all(axis=1) & np.isfinite(cross).all(axis=1)
+        k = np.where(ok, np.nan_to_num(keep).mean(axis=1), 0.0)
+        c = np.where(ok, np.nan_to_num(cross).mean(axis=1), np.inf)
+        toggle = np.zeros(T, dtype=bool)
+        toggle[2:] = ok & (k > cfg.min_offset_m) & (c < cfg.ratio * k)
+        if not toggle.any():
+            continue
+        swapped = (np.cumsum(toggle) % 2).astype(bool)
+        starts, ends = _runs(swapped)
+        for s0, e0 in zip(starts, ends):  # a few runs per window
+            if e0 - s0 > longest or e0 == T and s0 == 0:
+                swapped[s0:e0] = False
+        if swapped.any():
+            rows = np.flatnonzero(swapped)
             out[rows[:, None], both[None, :]] = x[rows[:, None], mirrored[None, :]]
             mask[rows[:, None], both[None, :]] = True
     return out, mask

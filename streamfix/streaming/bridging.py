@@ -359,10 +359,11 @@ class BridgingWindowSolver:
             # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
             from .swaps import unswap_window
 
+            # exchanged back, not flagged recovered: they are observed samples relabelled,
+            # and the clean history must keep them so the next window sees the same labels
             x, swapped = unswap_window(x, obs, skeleton, rate_hz, history)
             if swapped.any():
                 positions = x
-                planted = swapped
         if self.foot_support and skeleton is not None:
             # legs the sensor folded up while a foot must be on the floor (streaming/support.py);
             # undone before the window pipeline, which then smooths the fix with everything else

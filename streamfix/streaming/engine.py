@@ -346,7 +346,7 @@ def hann_weights(n: int) -> np.ndarray:
     return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
 
 
-HANDOVER_S = 0.13  # crossfade at a window hand-over (4 frames at 30 Hz); see handover_weights
+HANDOVER_S = 1.0  # crossfade at a window hand-over, capped at the shared frames; see handover_weights
 
 
 def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None) -> np.ndarray:

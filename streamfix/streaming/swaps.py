@@ -1,9 +1,10 @@
 """Left/right swaps in one engine window: :func:`streamfix.core.swaps.undo_limb_swaps` seen
 with the body's clean history.
 
-The running median that defines where each limb should be needs about half a second on
-each side of a frame; at the window's start that comes from the clean history (already
-unswapped), so the window is extended by it and only the window's rows are returned.
+A swap shows as a toggle between consecutive frames, so the frames just before the window
+matter: the window is extended by the body's clean history (already unswapped, and kept
+there because relabelled joints are not flagged recovered) and only the window's rows are
+returned.
 """
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ def unswap_window(
     if not groups:
         return x, np.zeros(x.shape[:2], dtype=bool)
     T = len(x)
-    keep = int(round(cfg.window_s * rate_hz))  # the median needs half of this before the window
+    keep = int(round(cfg.max_swap_s * rate_hz))  # a swap that began before the window is in here
     h = np.zeros((0,) + x.shape[1:]) if history is None or len(history) == 0 else np.asarray(history, dtype=np.float64)[-keep:]
     ext = np.concatenate([h, np.where(observed[..., None], x, np.nan)])
     fixed, mask = undo_limb_swaps(ext, groups, rate_hz, cfg)
