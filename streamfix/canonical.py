@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import numpy as np
 
-from .skeletons import AZURE_KINECT, KINECT_V2, MEDIAPIPE_POSE
+from .skeletons import AZURE_KINECT, COCO_17, KINECT_V2, MEDIAPIPE_POSE
 
 __all__ = [
     "CANONICAL_JOINTS",
@@ -93,11 +93,7 @@ KINECT_V1_UIPRMD_JOINTS = (
     "RCollar", "RShoulder", "RElbow", "RWrist", "LHip", "LKnee", "LAnkle", "LFoot", "RHip", "RKnee",
     "RAnkle", "RFoot",
 )
-COCO17_JOINTS = (
-    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
-    "right_knee", "left_ankle", "right_ankle",
-)
+COCO17_JOINTS = COCO_17.joint_names
 
 
 @dataclass(frozen=True)

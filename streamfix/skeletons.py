@@ -19,6 +19,7 @@ __all__ = [
     "KINECT_V2",
     "AZURE_KINECT",
     "MEDIAPIPE_POSE",
+    "COCO_17",
 ]
 
 
@@ -189,7 +190,18 @@ _MEDIAPIPE_EDGES = (
 )
 MEDIAPIPE_POSE = Skeleton("mediapipe_pose", _MEDIAPIPE_NAMES, _MEDIAPIPE_EDGES)
 
-_REGISTRY: dict[str, Skeleton] = {s.name: s for s in (KINECT_V2, AZURE_KINECT, MEDIAPIPE_POSE)}
+# COCO-17 keypoints (pose estimators: OpenPose/MMPose/YOLO-pose 3D lifts), the COCO skeleton's 16 limb edges
+# plus the shoulder-hip sides; a graph, not a tree.
+COCO_17 = Skeleton(
+    "coco17",
+    ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+     "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
+     "right_knee", "left_ankle", "right_ankle"),
+    ((0, 1), (0, 2), (1, 3), (2, 4), (5, 6), (5, 7), (7, 9), (6, 8), (8, 10), (5, 11), (6, 12), (11, 12),
+     (11, 13), (13, 15), (12, 14), (14, 16)),
+)
+
+_REGISTRY: dict[str, Skeleton] = {s.name: s for s in (KINECT_V2, AZURE_KINECT, MEDIAPIPE_POSE, COCO_17)}
 
 
 def register_skeleton(skeleton: Skeleton, *, replace: bool = False) -> Skeleton:
