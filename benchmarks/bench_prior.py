@@ -37,9 +37,9 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from streamfix.canonical import CANONICAL_JOINTS, LAYOUTS, from_canonical, to_canonical  # noqa: E402
+from streamfix.canonical import CANONICAL_JOINTS, LAYOUTS  # noqa: E402
 from streamfix.evaluation.occlusion import _solver, drop_masks, nearest_joint_fill, score_prior_on_takes  # noqa: E402
-from streamfix.io.prior_takes import canonical_take, uiprmd_takes  # noqa: E402
+from streamfix.io.prior_takes import uiprmd_takes  # noqa: E402
 from streamfix.prior.data import HELD_OUT, cut_windows, load_take, resample_masked  # noqa: E402
 from streamfix.prior.init import fill_long_gaps, prior_initial_guess  # noqa: E402
 from streamfix.prior.latent import fit_latent  # noqa: E402
