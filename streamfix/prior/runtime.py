@@ -135,13 +135,6 @@ class Prior:
             kw["scale_bones"] = tuple(int(i) for i in norm["scale_bones_child_index"])
         return kw
 
-    @property
-    def layout(self):
-        """The ``streamfix.canonical.Layout`` the model's joints are in (``canonical`` for the shipped model)."""
-        from streamfix.canonical import get_layout
-
-        return get_layout(self.card.get("skeleton", "kinect_v2"))
-
     # ------------------------------------------------------------ raw networks
     def encode(self, y: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """E(Y): normalised windows (B, T, J, 3) and masks (B, T, J) -> latents (B, L)."""
