@@ -47,11 +47,11 @@ __all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and
 
 
 class TrainConfig:
-    """Hyper-parameters (sizes scaled down from the paper's HDM05 model; about 20 minutes on one core)."""
+    """Hyper-parameters (sizes scaled down from the paper's HDM05 model; about 16 minutes on one shared core)."""
 
     def __init__(
         self,
-        epochs: int = 60,
+        epochs: int = 100,
         seed: int = 0,
         window: int = 64,
         channels: int = 96,
