@@ -19,8 +19,10 @@ joints (observed only where every contributing joint is observed);
 ``LAYOUTS[name].anchors`` names, for each layout joint, the canonical joint it moves
 with, and ``exact`` marks the layout joints that *are* a canonical joint. Going back
 (:func:`from_canonical`) an exact joint takes the canonical value; any other joint (hand
-tips, thumbs, face points, SpineBase, ...) takes its anchor's value plus the mean offset
-from the anchor over the frames where that joint was observed.
+tips, thumbs, face points, SpineBase, ...) is placed at anchor + k (anchor - anchor's
+parent) + d, with the scalar k and offset d fitted by least squares on the frames where
+that joint was observed (a hand tip extends the wrist-hand segment as the hand turns); a
+joint never observed sits at its anchor.
 """
 from __future__ import annotations
 
@@ -66,6 +68,8 @@ _PARENT = {
 #: (parent, child) index pairs, 19 bones, parents first.
 CANONICAL_BONES = np.array([(_CI[_PARENT[n]], _CI[n]) for n in CANONICAL_JOINTS[1:]], dtype=np.intp)
 CANONICAL_ROOT = _CI["pelvis"]
+# parent of each canonical joint (the root is its own)
+_PARENT_INDEX = np.array([_CI[_PARENT.get(n, n)] for n in CANONICAL_JOINTS], dtype=np.intp)
 CANONICAL_HIPS = (_CI["hip_l"], _CI["hip_r"])
 #: The paper's structured masks (Lohit et al. Table 3): a whole arm or leg, 4 joints each.
 CANONICAL_LIMBS = {
@@ -279,10 +283,10 @@ def from_canonical(
 ) -> np.ndarray:
     """Canonical estimate (T, 20, 3) -> the layout's joints (T, J, 3) m.
 
-    Exact joints take the canonical value; every other joint takes its anchor's value
-    plus its mean offset from the canonical estimate of the anchor over the frames of
+    Exact joints take the canonical value; every other joint is placed at
+    anchor + k (anchor - anchor's parent) + d with k, d fitted on the frames of
     ``positions``/``observed`` (the layout's own data, (T, J, 3)/(T, J)) where it was
-    observed, or no offset when it never was.
+    observed (module doc), or at its anchor when it never was.
     """
     lay = get_layout(layout) if isinstance(layout, str) else layout
     c = np.asarray(canonical, dtype=np.float64)
@@ -292,10 +296,22 @@ def from_canonical(
     if positions is None:
         return out
     x, obs = _check(positions, observed, lay.n_joints, f"from_canonical({lay.name})")
-    approx = ~lay.exact
-    if approx.any():
-        diff = np.where(obs[..., None], x - out, 0.0)
-        n = obs.sum(axis=-2)[..., None]  # (..., J, 1) frames observed
-        offset = diff.sum(axis=-3) / np.maximum(n, 1)
-        out[..., approx, :] += offset[..., None, approx, :]
+    approx = np.flatnonzero(~lay.exact)
+    if approx.size:
+        # x_j ~ a + k u + d: a = anchor, u = a - (anchor's parent), k and d fitted on the observed frames,
+        # so a hand tip stays on the line of the hand segment as the hand turns
+        a = out[..., approx, :]
+        u = a - c[..., _PARENT_INDEX[lay.anchor_index[approx]], :]
+        o = obs[..., approx]
+        diff = np.where(o[..., None], x[..., approx, :] - a, 0.0)
+        uu = np.where(o[..., None], u, 0.0)
+        n = np.maximum(o.sum(axis=-2), 1)[..., None]  # (..., A, 1)
+        u_mean, d_mean = uu.sum(axis=-3) / n, diff.sum(axis=-3) / n
+        du = np.where(o[..., None], u - u_mean[..., None, :, :], 0.0)
+        cov = (du * (diff - d_mean[..., None, :, :])).sum(axis=(-3, -1))
+        var = (du * du).sum(axis=(-3, -1))
+        # k within +-3 segment lengths: a segment that barely turned in the window says little about k
+        k = np.clip(np.where(var > 1e-6, cov / np.maximum(var, 1e-12), 0.0), -3.0, 3.0)  # (..., A)
+        d = d_mean - k[..., None] * u_mean
+        out[..., approx, :] = a + k[..., None, :, None] * u + d[..., None, :, :]
     return out
