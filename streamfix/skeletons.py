@@ -20,6 +20,7 @@ __all__ = [
     "AZURE_KINECT",
     "MEDIAPIPE_POSE",
     "KINECT_V1_UIPRMD",
+    "COCO_17",
 ]
 
 
@@ -204,8 +205,19 @@ KINECT_V1_UIPRMD = _from_parents(
     ],
 )
 
+# COCO-17 keypoints (pose estimators: OpenPose/MMPose/YOLO-pose 3D lifts), the COCO skeleton's 16 limb edges
+# plus the shoulder-hip sides; a graph, not a tree.
+COCO_17 = Skeleton(
+    "coco17",
+    ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+     "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
+     "right_knee", "left_ankle", "right_ankle"),
+    ((0, 1), (0, 2), (1, 3), (2, 4), (5, 6), (5, 7), (7, 9), (6, 8), (8, 10), (5, 11), (6, 12), (11, 12),
+     (11, 13), (13, 15), (12, 14), (14, 16)),
+)
+
 _REGISTRY: dict[str, Skeleton] = {
-    s.name: s for s in (KINECT_V2, AZURE_KINECT, MEDIAPIPE_POSE, KINECT_V1_UIPRMD)
+    s.name: s for s in (KINECT_V2, AZURE_KINECT, MEDIAPIPE_POSE, KINECT_V1_UIPRMD, COCO_17)
 }
 
 

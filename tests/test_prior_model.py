@@ -1,4 +1,4 @@
-"""The shipped Kinect v2 prior: it loads without torch, its card describes it, and D(z*) does what Eq. 1 says."""
+"""The shipped canonical-body prior: it loads without torch, its card describes it, and D(z*) does what Eq. 1 says."""
 from __future__ import annotations
 
 import json
@@ -8,12 +8,13 @@ import sys
 import numpy as np
 import pytest
 
+from streamfix.canonical import CANONICAL_BONES, CANONICAL_JOINTS, LAYOUTS
 from streamfix.evaluation.occlusion import drop_masks, nearest_joint_fill
+from streamfix.io.prior_takes import canonical_take
 from streamfix.prior.data import HELD_OUT, cut_windows, load_take, resample_masked
 from streamfix.prior.init import fill_long_gaps, prior_initial_guess
 from streamfix.prior.latent import fit_latent
 from streamfix.prior.runtime import DEFAULT_CARD, Prior, _session, sha256_file
-from streamfix.skeletons import KINECT_V2
 
 
 @pytest.fixture(scope="module")
@@ -23,11 +24,11 @@ def prior() -> Prior:
 
 @pytest.fixture(scope="module")
 def held_out(shared_data, prior):
-    """Held-out CMU take 131_02 at the prior's rate, as 64-frame windows with half the joints dropped."""
-    take = load_take(shared_data / "cmu_bvh" / "131_02.bvh")
+    """Held-out CMU take 131_02 in canonical joints at the prior's rate, as 64-frame windows with half the joints dropped."""
+    take = canonical_take(load_take(shared_data / "cmu_bvh" / "131_02.bvh"), "kinect_v2")
     pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, prior.rate_hz)
     wins, masks, _ = cut_windows(pos, obs, prior.window, prior.window)
-    keep = drop_masks(len(wins), 25, prior.window, "random", 50.0, np.random.default_rng(5))
+    keep = drop_masks(len(wins), 20, prior.window, "random", 50.0, np.random.default_rng(5))
     return np.nan_to_num(wins), masks, keep
 
 
@@ -47,13 +48,14 @@ def test_runtime_does_not_import_torch():
 
 def test_card_matches_the_shipped_graphs(prior):
     card = json.loads(DEFAULT_CARD.read_text())
-    assert card["skeleton"] == "kinect_v2" and card["n_joints"] == 25
+    assert card["skeleton"] == "canonical" and card["joints"] == list(CANONICAL_JOINTS) and card["n_joints"] == 20
     t, j, l = card["window"], card["n_joints"], card["latent"]
     assert t % (1 << card["levels"]) == 0 and card["rate_hz"] == 30.0
+    total = 0
     for role in ("encoder", "decoder", "decoder_jacobian"):
         path = DEFAULT_CARD.parent / card["files"][role]["file"]
         assert sha256_file(path) == card["files"][role]["sha256"]
-        assert path.stat().st_size < 4_000_000  # "a few MB at most" for all three together
+        total += path.stat().st_size
         sess = _session(path, 1)
         dims = {v.name: list(v.shape) for v in list(sess.get_inputs()) + list(sess.get_outputs())}
         if role == "encoder":
@@ -62,12 +64,29 @@ def test_card_matches_the_shipped_graphs(prior):
             assert dims["z"] == ["batch", l] and dims["x"] == ["batch", t, j, 3]
         else:
             assert dims["jac"] == ["batch", l, t * j * 3]
+    assert total < 5_000_000  # "a few MB" for all three together
+    # every file in models/ is one the card names (nothing stale ships beside it)
+    markdown = DEFAULT_CARD.with_suffix(".md")
+    named = {card["files"][r]["file"] for r in card["files"]} | {DEFAULT_CARD.name, markdown.name}
+    assert {p.name for p in DEFAULT_CARD.parent.iterdir() if p.is_file()} == named
+    # the human-readable card is the JSON one rendered (hashes, sources, held-out rows)
+    text = markdown.read_text()
+    assert all(card["files"][r]["sha256"] in text for r in card["files"])
+    assert all(src in text for src in card["training"]["sources"])
+    assert text.count("\n| ") >= len(card["held_out_scores"]) // 3
     norm = card["normalisation"]
-    assert len(norm["reference_bone_lengths_m"]) == KINECT_V2.n_bones
-    assert np.asarray(norm["bones"]).tolist() == KINECT_V2.bone_array.tolist()
-    # the split: held-out takes are scored and never trained on
-    trained = {d["name"] for d in card["training"]["data"]}
-    assert set(card["training"]["held_out"]) == set(HELD_OUT) and not trained & set(HELD_OUT)
+    assert norm["root_joint"] == "pelvis" and norm["root_index"] == CANONICAL_JOINTS.index("pelvis")
+    assert np.asarray(norm["bones"]).tolist() == CANONICAL_BONES.tolist()
+    assert len(norm["reference_bone_lengths_m"]) == len(CANONICAL_BONES)
+    assert np.asarray(norm["facing_template"]).shape == (20, 3)
+    assert set(card["layouts"]) == set(LAYOUTS)
+    # the data: an hour or more, every source's licence allows commercial use, held-out people never trained on
+    tr = card["training"]
+    assert tr["minutes"] >= 60 and abs(sum(s["minutes"] for s in tr["sources"].values()) - tr["minutes"]) < 0.1
+    for name, src in tr["sources"].items():
+        assert "commercial" in src["licence"] or "PDDL" in src["licence"] or "MIT" in src["licence"] \
+            or "BSD" in src["licence"], name
+    assert set(tr["held_out"]) == set(HELD_OUT)
     assert {s["take"] for s in card["held_out_scores"]} == set(HELD_OUT)
     # and it runs at the card's sizes, batch dynamic
     z = prior.encode(np.zeros((3, t, j, 3)), np.ones((3, t, j)))
@@ -79,7 +98,7 @@ def test_a_tampered_graph_is_refused(tmp_path):
     for role in ("encoder", "decoder", "decoder_jacobian"):
         (tmp_path / card["files"][role]["file"]).write_bytes((DEFAULT_CARD.parent / card["files"][role]["file"]).read_bytes())
     card["files"]["decoder"]["sha256"] = "0" * 64
-    (tmp_path / "kinect_v2.json").write_text(json.dumps(card))
+    (tmp_path / "canonical.json").write_text(json.dumps(card))
     with pytest.raises(ValueError, match="SHA-256"):
         Prior.load(tmp_path)
 
@@ -105,7 +124,7 @@ def test_latent_optimisation_beats_the_feed_forward_pass(prior, held_out):
     dropped = masks & ~keep
     enc = prior.reconstruct(wins, obs)
     lat = fit_latent(prior, wins, obs).decoded
-    nearest = np.stack([nearest_joint_fill(w, o, KINECT_V2.bone_array) for w, o in zip(wins, obs)])
+    nearest = np.stack([nearest_joint_fill(w, o, CANONICAL_BONES) for w, o in zip(wins, obs)])
     rmse = lambda x: np.sqrt(((x - wins) ** 2).sum(-1)[dropped].mean())  # noqa: E731
     assert rmse(lat) < rmse(enc)
     assert rmse(lat) < rmse(nearest)
@@ -149,7 +168,7 @@ def test_solver_from_the_prior_needs_fewer_iterations_and_is_no_worse(prior, hel
     wins, masks, keep = held_out
     gt, obs = wins[1], masks[1] & keep[1]
     d = np.where(obs[..., None], gt, np.nan)
-    bones = KINECT_V2.bone_array
+    bones = CANONICAL_BONES
     alone = solve(d, obs, bones)
     params = solver_params_for_prior_init(d, obs)
     # the penalty start is the solver's own cold-start rho0 times the documented factor
@@ -181,7 +200,7 @@ def test_prior_shifted_state_puts_the_prior_on_the_new_frames(prior, held_out):
     wins, masks, keep = held_out
     full = np.concatenate([wins[0], wins[1]])  # 128 consecutive frames
     fobs = np.concatenate([masks[0] & keep[0], masks[1] & keep[1]])
-    bones = KINECT_V2.bone_array
+    bones = CANONICAL_BONES
     first = solve(np.where(fobs[:64, :, None], full[:64], np.nan), fobs[:64], bones)
     hop = 16
     d, o = full[hop:64 + hop], fobs[hop:64 + hop]

@@ -48,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="reference takes of the same skeleton / marker set for the gap filler "
                              "(files or directories; repeatable)")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists (never the input)")
+    parser.add_argument("--prior", default=None, metavar="PATH",
+                        help="learned prior to use: a model card .json or a directory holding one, as written by "
+                             "`streamfix train-prior --out DIR` (default: the shipped model)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
 
 
@@ -110,6 +113,15 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 2
+    if args.prior is not None:
+        from ..prior.runtime import set_default_prior
+
+        try:
+            set_default_prior(args.prior)
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"streamfix clean: --prior {args.prior}: {exc}", file=sys.stderr)
+            return 2
+
     try:
         motion = read_motion(args.input)
     except (OSError, ValueError) as exc:

@@ -59,6 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sndhwm", type=int, default=1000, help="PUB send high-water mark per subscriber (messages)")
     p.add_argument("--linger-ms", type=int, default=2000, help="on exit, wait this long for queued messages to leave")
     p.add_argument("--meta-interval", type=float, default=1.0, help="seconds between repeated skeleton messages")
+    p.add_argument("--prior", default=None, metavar="PATH",
+                   help="learned prior to use: a model card .json or a directory holding one, as written by "
+                        "`streamfix train-prior --out DIR` (default: the shipped model)")
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",
                    help="also serve the browser viewer (streamfix view) on http://127.0.0.1:PORT (default 8765)")
@@ -126,6 +129,14 @@ def run(args: argparse.Namespace) -> int:
         level=getattr(logging, args.log_level), stream=sys.stderr, format="streamfix serve: %(message)s"
     )
     log = logging.getLogger("streamfix.service")
+    if args.prior is not None:
+        from ..prior.runtime import set_default_prior
+
+        try:
+            set_default_prior(args.prior)
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"streamfix serve: --prior {args.prior}: {exc}", file=sys.stderr)
+            return 2
 
     import zmq
 

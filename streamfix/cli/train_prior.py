@@ -5,26 +5,29 @@ import argparse
 import sys
 from pathlib import Path
 
-HELP = "train the learned motion prior (temporal-conv autoencoder) on BVH + Kinect v2 data and export ONNX + card"
+
+# streamfix.prior.train.TrainConfig's defaults (that module imports torch; --help must not need it)
+_DEFAULTS = {"epochs": 100, "steps_per_epoch": 60, "latent": 32, "channels": 96}
+
+HELP = "train the learned motion prior (temporal-conv autoencoder, canonical body) on the shared recordings; export ONNX + card"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default="../shared/data",
-                        help="directory holding cmu_bvh/, xia_bvh/ (BVH) and kinect_v2/ (CSV) (default: ../shared/data)")
-    parser.add_argument("--out", required=True, help="output directory for kinect_v2.{encoder,decoder,decoder_jacobian}.onnx and kinect_v2.json")
-    parser.add_argument("--epochs", type=int, default=60, help="epochs of --steps batches (default 60)")
-    parser.add_argument("--steps", type=int, default=40, help="batches per epoch (default 40)")
+                        help="directory holding cmu_bvh/, xia_bvh/, kinect_v2/, c3d/ and paired/uiprmd/ (default: ../shared/data)")
+    parser.add_argument("--out", required=True, help="output directory for canonical.{encoder,decoder,decoder_jacobian}.onnx and canonical.json")
+    parser.add_argument("--epochs", type=int, default=_DEFAULTS["epochs"], help="epochs of --steps batches")
+    parser.add_argument("--steps", type=int, default=_DEFAULTS["steps_per_epoch"], help="batches per epoch")
     parser.add_argument("--seed", type=int, default=0, help="seed for weights, windows, augmentation and masks (default 0)")
-    parser.add_argument("--latent", type=int, default=32, help="latent size L (default 32)")
-    parser.add_argument("--channels", type=int, default=64, help="feature maps per conv layer (default 64)")
+    parser.add_argument("--latent", type=int, default=_DEFAULTS["latent"], help="latent size L")
+    parser.add_argument("--channels", type=int, default=_DEFAULTS["channels"], help="feature maps per conv layer")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--held-out", default=None,
-                        help="comma-separated take names to hold out (default: 131_02,neutral_01_000,Ges04_comehere)")
+                        help="comma-separated take names or groups to hold out "
+                             "(default: 131_02,neutral_01_000,Ges04_comehere,uiprmd_s06)")
     parser.add_argument("--no-eval", action="store_true", help="skip the held-out occlusion scores in the card")
-    parser.add_argument("--with-markers", action="store_true",
-                        help="also train on the CMU full-body marker C3D takes under c3d/ (joints approximated from "
-                             "markers; off by default: it made the held-out D(z*) worse)")
-
+    parser.add_argument("--no-kinect-v1", action="store_true",
+                        help="leave out UI-PRMD's Kinect v1 skeletons (partially observed data)")
 
 def run(args: argparse.Namespace) -> int:
     try:
@@ -46,5 +49,5 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(epochs=args.epochs, seed=args.seed, channels=args.channels, latent=args.latent,
                       steps_per_epoch=args.steps, threads=args.threads)
     train_and_export(data, args.out, cfg, held_out=held, log=lambda s: print(s, flush=True), evaluate=not args.no_eval,
-                     include_markers=args.with_markers)
+                     kinect_v1=not args.no_kinect_v1)
     return 0

@@ -76,17 +76,23 @@ def nearest_joint_fill(positions: np.ndarray, observed: np.ndarray, bones: np.nd
     return x[:, src]
 
 
-def drop_masks(n_windows: int, n_joints: int, window: int, pattern: str, level: float, rng: np.random.Generator) -> np.ndarray:
-    """(W, window, J) bool keep-masks: joints dropped for whole windows by ``pattern``/``level`` %."""
+def drop_masks(
+    n_windows: int, n_joints: int, window: int, pattern: str, level: float, rng: np.random.Generator,
+    limbs: dict | None = None,
+) -> np.ndarray:
+    """(W, window, J) bool keep-masks: joints dropped for whole windows by ``pattern``/``level`` %.
+
+    ``limbs``: limb name -> joint indices of the layout (default: Kinect v2's)."""
     from streamfix.prior.normalize import KINECT_V2_LIMBS
 
+    limbs = KINECT_V2_LIMBS if limbs is None else limbs
     keep = np.ones((n_windows, window, n_joints), dtype=bool)
     if pattern == "random":
         k = int(round(level / 100.0 * n_joints))
         for w in range(n_windows):  # windows
             keep[w, :, rng.choice(n_joints, size=k, replace=False)] = False
     else:
-        keep[:, :, list(KINECT_V2_LIMBS[pattern])] = False
+        keep[:, :, list(limbs[pattern])] = False
     return keep
 
 
@@ -159,13 +165,28 @@ def _evaluate_take(
 ) -> list[dict]:
     from streamfix.prior.data import cut_windows
 
-    bones = KINECT_V2.bone_array
     w_len = max(int(round(window_s * rate_hz)), 8)
     wins, wmask, _ = cut_windows(positions, truth_obs, w_len, w_len)
+    return _evaluate_windows(name, wins, wmask, rate_hz, patterns, methods, seed, KINECT_V2.bone_array)
+
+
+def _evaluate_windows(
+    name: str,
+    wins: np.ndarray,
+    wmask: np.ndarray,
+    rate_hz: float,
+    patterns: list[tuple[str, float]],
+    methods: dict[str, Callable],
+    seed: int,
+    bones: np.ndarray,
+    limbs: dict | None = None,
+) -> list[dict]:
+    """Score ``methods`` on windows (W, T, J, 3) with ground-truth masks (W, T, J) under each drop pattern."""
+    w_len = wins.shape[1]
     records = []
     for p_i, (pattern, level) in enumerate(patterns):
         rng = np.random.default_rng([seed, p_i])
-        keep = drop_masks(len(wins), wins.shape[2], w_len, pattern, level, rng)
+        keep = drop_masks(len(wins), wins.shape[2], w_len, pattern, level, rng, limbs)
         for method, fn in methods.items():
             sq, sq_drop, n_all, n_drop, ajes, abes, jits, iters, times = 0.0, 0.0, 0, 0, [], [], [], [], []
             errors: list[str] = []
@@ -224,12 +245,14 @@ def _evaluate_take(
     return records
 
 
-def _patterns(levels) -> list[tuple[str, float]]:
-    n_j = KINECT_V2.n_joints
+def _patterns(levels, n_joints: int | None = None, limbs: dict | None = None) -> list[tuple[str, float]]:
+    """Random patterns at ``levels`` % and the four limb patterns (level = the limb's share of the joints)."""
     from streamfix.prior.normalize import KINECT_V2_LIMBS
 
+    n_j = KINECT_V2.n_joints if n_joints is None else n_joints
+    limbs = KINECT_V2_LIMBS if limbs is None else limbs
     pats = [("random", float(lv)) for lv in levels]
-    pats += [(name, 100.0 * len(KINECT_V2_LIMBS[name]) / n_j) for name in LIMB_PATTERNS]
+    pats += [(name, 100.0 * len(limbs[name]) / n_j) for name in LIMB_PATTERNS]
     return pats
 
 
@@ -262,23 +285,42 @@ def run(
     return records
 
 
-def score_prior_on_takes(card_path: str | Path, takes: list, seed: int = 0) -> list[dict]:
-    """Held-out scores for a model card (prior methods and the baseline at 30 Hz), as compact records."""
-    from streamfix.prior.data import resample_masked
+def score_prior_on_takes(card_path: str | Path, takes: list, seed: int = 0, max_takes_per_group: int | None = None) -> list[dict]:
+    """Held-out scores for a model card on canonical takes (``streamfix.io.prior_takes``), as compact records.
+
+    Prior methods and the nearest-joint baseline at the prior's rate, in canonical joints;
+    takes of one group (a UI-PRMD person) are pooled into one row; Kinect v1 takes are
+    skipped (no ground truth). ``max_takes_per_group`` keeps every n-th take of a large group.
+    """
+    from streamfix.canonical import CANONICAL_BONES, CANONICAL_LIMBS
+    from streamfix.prior.data import cut_windows, resample_masked
     from streamfix.prior.runtime import Prior
 
     prior = Prior.load(card_path)
-    methods = {k: v for k, v in _make_methods(prior, prior.rate_hz, KINECT_V2.bone_array).items()
+    methods = {k: v for k, v in _make_methods(prior, prior.rate_hz, CANONICAL_BONES).items()
                if k in ("nearest_joint", "prior_encode", "prior_latent")}
-    out = []
+    groups: dict[str, list] = {}
     for take in takes:
-        pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, prior.rate_hz)
-        recs = _evaluate_take(take.name, pos, obs, prior.rate_hz, _patterns(DEFAULT_LEVELS), methods, seed,
-                              prior.window / prior.rate_hz)
+        if take.source != "uiprmd_kinect_v1":
+            groups.setdefault(take.group, []).append(take)
+    out = []
+    for group, members in groups.items():
+        if max_takes_per_group and len(members) > max_takes_per_group:
+            members = members[:: int(np.ceil(len(members) / max_takes_per_group))]
+        wins, masks = [], []
+        for take in members:  # takes, not frames
+            pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, prior.rate_hz)
+            w, m, _ = cut_windows(pos, obs, prior.window, prior.window)
+            wins.append(w)
+            masks.append(m)
+        recs = _evaluate_windows(group, np.concatenate(wins), np.concatenate(masks), prior.rate_hz,
+                                 _patterns(DEFAULT_LEVELS, prior.n_joints, CANONICAL_LIMBS), methods, seed,
+                                 CANONICAL_BONES, CANONICAL_LIMBS)
         for r in recs:
-            out.append({"take": take.name, "pattern": r["pattern"], "test_otp": r["test_otp"], "method": r["method"],
-                        "rmse_m": round(r["rmse_m"], 5), "rmse_dropped_m": round(r["rmse_dropped_m"], 5),
-                        "windows": r["windows"]})
+            out.append({"take": group, "takes": len(members), "pattern": r["pattern"], "test_otp": round(r["test_otp"], 1),
+                        "method": r["method"], "rmse_m": round(r["rmse_m"], 5),
+                        "rmse_dropped_m": round(r["rmse_dropped_m"], 5), "windows": r["windows"],
+                        "time_ms": round(r["time_ms"], 2)})
     return out
 
 

@@ -31,8 +31,13 @@ How the other layers call it
   shifted by a linearly varying offset so that it meets the observed samples at both
   ends of the gap (an edge gap keeps the constant offset of its one observed end).
 
-Both accept only the prior's skeleton (Kinect v2, 25 joints); ``prior_available()``
-tells whether a prior for a joint count is shipped, so callers can skip it otherwise.
+All three accept the prior's own joints (the canonical 20) or any layout that
+``streamfix.canonical`` maps (told apart by joint count: Kinect v2 25, Azure Kinect 32,
+Kinect v1/UI-PRMD 22, COCO-17, BlazePose 33): the motion is mapped to the canonical
+joints, reconstructed there and mapped back (``from_canonical``: joints that are not
+canonical, such as hand tips, move with their anchor joint at their observed offset).
+``prior_available()`` tells whether the prior handles a joint count, so callers can
+skip it otherwise.
 """
 from __future__ import annotations
 
@@ -59,13 +64,36 @@ __all__ = [
 PRIOR_INIT_RHO_FACTOR = 1.3**20
 
 
-def prior_available(n_joints: int, prior: Prior | None = None) -> bool:
-    """True when the (default) prior handles skeletons of ``n_joints`` joints."""
+def prior_available(n_joints: int, prior: Prior | None = None, skeleton: str | None = None) -> bool:
+    """True when the (default) prior handles skeletons of ``n_joints`` joints (its own or a mapped layout).
+
+    Pass ``skeleton`` (the skeleton's registry name) where known: joint counts alone
+    cannot tell a 32-marker C3D file from an Azure Kinect body.
+    """
     try:
         p = prior or load_default_prior()
     except (FileNotFoundError, ValueError):
         return False
-    return p.n_joints == n_joints
+    if skeleton is not None:
+        return skeleton == p.card.get("skeleton") or _layout_of(p, n_joints, skeleton) is not None
+    return p.n_joints == n_joints or (_layout_of(p, n_joints) is not None)
+
+
+def _layout_of(prior: Prior, n_joints: int, skeleton: str | None = None):
+    """The ``streamfix.canonical.Layout`` of the motion when the prior is canonical and the motion is not, else None."""
+    from streamfix.canonical import LAYOUTS, layout_for_joint_count
+
+    if prior.card.get("skeleton") != "canonical":
+        return None
+    if skeleton is not None:
+        lay = LAYOUTS.get(skeleton)
+        return None if lay is None or lay.name == "canonical" or lay.n_joints != n_joints else lay
+    if n_joints == prior.n_joints:
+        return None
+    try:
+        return layout_for_joint_count(n_joints)
+    except ValueError:
+        return None
 
 
 def overlap_add(windows: np.ndarray, starts: np.ndarray, n_frames: int, valid: np.ndarray | None = None) -> np.ndarray:
@@ -107,6 +135,7 @@ def prior_initial_guess(
     method: str = "latent",
     keep_observed: bool = True,
     max_iter: int = 8,
+    skeleton: str | None = None,
 ) -> np.ndarray:
     """A complete (T, J, 3) metre estimate from the prior for any T and rate.
 
@@ -117,14 +146,28 @@ def prior_initial_guess(
     ``keep_observed`` observed joints keep their input values. Windows that saw fewer
     than 3 joints are ignored and the frames only they covered are interpolated in time
     between their neighbours' estimates. A motion with nothing observed is returned as all-NaN.
+    ``skeleton``: the motion's layout name (``streamfix.canonical.LAYOUTS``); None = told by joint count.
     """
     prior = prior or load_default_prior()
     x = np.asarray(positions, dtype=np.float64)
-    if x.ndim != 3 or x.shape[1:] != (prior.n_joints, 3):
-        raise ValueError(f"positions must be (T, {prior.n_joints}, 3) for the prior's skeleton, got {x.shape}")
+    layout = _layout_of(prior, x.shape[1], skeleton) if x.ndim == 3 else None
+    if x.ndim != 3 or x.shape[2] != 3 or (x.shape[1] != prior.n_joints and layout is None):
+        raise ValueError(f"positions must be (T, {prior.n_joints}, 3) for the prior's skeleton or (T, J, 3) of a "
+                         f"layout streamfix.canonical maps, got {x.shape}")
     obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
     if obs.shape != x.shape[:2]:
         raise ValueError(f"observed must be {x.shape[:2]}, got {obs.shape}")
+    if layout is not None:
+        from streamfix.canonical import from_canonical, to_canonical
+
+        cx, cobs = to_canonical(x, obs, layout)
+        est = prior_initial_guess(cx, cobs, rate_hz, prior=prior, method=method, keep_observed=False, max_iter=max_iter)
+        if not np.isfinite(est).any():
+            return np.full_like(x, np.nan)
+        est = from_canonical(est, layout, x, obs)
+        if keep_observed:
+            est[obs] = x[obs]
+        return est
     n = x.shape[0]
     if n == 0 or not obs.any():
         return np.full_like(x, np.nan)
@@ -137,7 +180,9 @@ def prior_initial_guess(
     if method == "latent":
         from .latent import fit_latent
 
-        rec = fit_latent(prior, wins, masks, max_iter=max_iter).decoded
+        # the chord method (dD/dz of E(Y) kept): as accurate as full Levenberg-Marquardt on the held-out
+        # windows and one Jacobian call per window instead of max_iter + 1 (the latency budget)
+        rec = fit_latent(prior, wins, masks, max_iter=max_iter, jacobian_steps=0).decoded
     else:
         rec = prior.reconstruct(wins, masks)
     # a window that saw too little of the body (fewer than 3 joints ever) says nothing about it
@@ -218,12 +263,16 @@ def fill_long_gaps(
     min_gap_frames: int,
     prior: Prior | None = None,
     estimate: np.ndarray | None = None,
+    skeleton: str | None = None,
+    method: str = "latent",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fill runs of >= ``min_gap_frames`` missing frames per joint from D(z*); returns (positions, filled mask).
 
     Observed samples and shorter gaps are returned untouched (short gaps stay NaN for
     the solver or interpolation to handle). ``estimate`` may pass a precomputed
     ``prior_initial_guess(..., keep_observed=False)`` to avoid a second prior run.
+    ``method``: ``"latent"`` D(z*) (default) or ``"encode"`` D(E(Y)), about 5x cheaper
+    (see ``benchmarks/results/prior.json`` for both costs and accuracies).
     """
     x = np.asarray(positions, dtype=np.float64)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
@@ -238,7 +287,8 @@ def fill_long_gaps(
     fill = ~obs & (run >= min_gap_frames)
     if not fill.any():
         return out, fill
-    p = estimate if estimate is not None else prior_initial_guess(x, obs, rate_hz, prior=prior, keep_observed=False)
+    p = estimate if estimate is not None else prior_initial_guess(x, obs, rate_hz, prior=prior, keep_observed=False,
+                                                                   skeleton=skeleton, method=method)
     jj = np.arange(n_j)[None, :]
     has_p, has_n = prev >= 0, nxt < n
     pc, nc = np.clip(prev, 0, n - 1), np.clip(nxt, 0, n - 1)

@@ -76,6 +76,7 @@ def fit_latent(
     latent_reg: float = 0.0,
     z0: np.ndarray | None = None,
     damping: float = 1.0,
+    jacobian_steps: int | None = None,
 ) -> LatentFit:
     """D(z*) for (T, J, 3) metre windows (or batches (B, T, J, 3)) with masks (T, J) / (B, T, J).
 
@@ -83,6 +84,9 @@ def fit_latent(
     ``rel_tol`` (relative). ``latent_reg`` adds ``latent_reg * ||z - z0||^2`` (0 = Eq. 1 as published).
     ``z0`` overrides the start E(Y) (e.g. the previous window's z* in a stream).
     ``damping``: initial Levenberg-Marquardt lambda (relative to diag(Jr^T Jr)).
+    ``jacobian_steps``: iterations that recompute dD/dz (None = every one); later
+    iterations keep the last accepted Jacobian (the chord method: one plain decoder call
+    each, ~20x cheaper than a Jacobian call), which bounds the cost of a window.
     """
     window, observed, single = prior.as_batch(window, observed, "fit_latent")
     y, obs, norms = prior.normalise(window, observed)
@@ -104,9 +108,21 @@ def fit_latent(
 
     y32 = yv.astype(np.float32)
 
+    def evaluate_chord(z: np.ndarray, c: np.ndarray, h: np.ndarray, jw: np.ndarray):
+        # D(z) alone; the step's normal equations keep the Jacobian rows jw (B, L, N) of the last accepted point
+        x = prior.decode(z).astype(np.float64)
+        xv = (x.reshape(b, -1, 3) + c[:, None, :]).reshape(b, -1)
+        r = w * (xv - yv)
+        dz = z - z_start
+        cost = (r * r).sum(axis=1) + latent_reg * (dz * dz).sum(axis=1)
+        g = np.empty((b, n_par, 1))
+        g[:, :n_lat, 0] = np.einsum("bln,bn->bl", jw, r) + latent_reg * dz
+        g[:, n_lat:, 0] = r.reshape(b, tj, 3).sum(axis=1)
+        return x, xv, cost, h, g, jw
+
     def evaluate(z: np.ndarray, c: np.ndarray):
         # one onnxruntime call gives D(z), r, ||r||^2 and the blocks of Jr^T Jr and Jr^T r
-        ne = prior.normal_equations(z, w32, y32, c)
+        ne = prior.normal_equations(z, w32, y32, c, with_jacobian=jacobian_steps is not None)
         r = ne["r"].astype(np.float64)
         xv = (ne["x"].reshape(b, -1, 3).astype(np.float64) + c[:, None, :]).reshape(b, -1)
         dz = z - z_start
@@ -121,27 +137,31 @@ def fit_latent(
         g[:, n_lat:, 0] = r.reshape(b, tj, 3).sum(axis=1)
         g[:, :n_lat, 0] += latent_reg * dz
         h += np.diag(reg)[None]
-        return ne["x"], xv, cost, h, g
+        jw = ne["jac"] * w32[:, None, :] if "jac" in ne else None
+        return ne["x"], xv, cost, h, g, jw
 
     z = z_start.copy()
     c = np.zeros((b, 3))
-    x, xv, cost, h, g = evaluate(z, c)
+    x, xv, cost, h, g, jw = evaluate(z, c)
     initial_cost = cost.copy()
-    best = (z.copy(), c.copy(), xv.copy(), cost.copy(), h, g)
+    best = (z.copy(), c.copy(), xv.copy(), cost.copy(), h, g, jw)
     lam = np.full(b, float(damping))
     active = np.ones(b, dtype=bool)
     iterations = 0
     for _ in range(max_iter):
         if not active.any():
             break
-        bz, bc, bxv, bcost, bh, bg = best
+        bz, bc, bxv, bcost, bh, bg, bjw = best
         diag = np.einsum("bii->bi", bh)
         lhs = bh + lam[:, None, None] * (diag[:, :, None] * eye[None]) + 1e-9 * eye[None]
         delta = -np.linalg.solve(lhs, bg)[..., 0]  # (B, L+3)
         delta[~active] = 0.0
         z_try = bz + delta[:, :n_lat]
         c_try = bc + delta[:, n_lat:]
-        x, xv, cost, h, g = evaluate(z_try, c_try)
+        if jacobian_steps is None or iterations < jacobian_steps:
+            x, xv, cost, h, g, jw = evaluate(z_try, c_try)
+        else:
+            x, xv, cost, h, g, jw = evaluate_chord(z_try, c_try, bh, bjw)
         iterations += 1
         better = (cost < bcost) & active
         gain = np.where(better, (bcost - cost) / np.maximum(bcost, 1e-30), 0.0)
@@ -154,6 +174,7 @@ def fit_latent(
             np.where(better, cost, bcost),
             np.where(better[:, None, None], h, bh),
             np.where(better[:, None, None], g, bg),
+            jw if jw is None or jw is bjw else np.where(better[:, None, None], jw, bjw),
         )
         active &= ~(better & (gain < rel_tol)) & (lam < 1e8)
     z, c, xv, cost = best[0], best[1], best[2], best[3]

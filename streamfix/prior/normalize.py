@@ -92,16 +92,19 @@ def _interp_rows(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
-def root_trajectory(positions: np.ndarray, observed: np.ndarray, root: int = KINECT_V2_ROOT) -> np.ndarray:
+def root_trajectory(
+    positions: np.ndarray, observed: np.ndarray, root: int = KINECT_V2_ROOT, hips: tuple[int, int] = (_HIP_LEFT, _HIP_RIGHT)
+) -> np.ndarray:
     """Root position per frame (T, 3) m: the root joint, interpolated where missing (see module doc)."""
     positions = np.asarray(positions, dtype=np.float64)
     observed = np.asarray(observed, dtype=bool) & np.isfinite(positions).all(axis=-1)
     if observed[:, root].any():
         return _interp_rows(np.nan_to_num(positions[:, root]), observed[:, root])
-    hips = observed[:, _HIP_LEFT] & observed[:, _HIP_RIGHT] if positions.shape[1] > _HIP_RIGHT else None
-    if hips is not None and hips.any():
-        mid = 0.5 * (np.nan_to_num(positions[:, _HIP_LEFT]) + np.nan_to_num(positions[:, _HIP_RIGHT]))
-        return _interp_rows(mid, hips)
+    hl, hr = hips
+    both = observed[:, hl] & observed[:, hr] if positions.shape[1] > max(hl, hr) else None
+    if both is not None and both.any():
+        mid = 0.5 * (np.nan_to_num(positions[:, hl]) + np.nan_to_num(positions[:, hr]))
+        return _interp_rows(mid, both)
     any_obs = observed.any(axis=1)
     if not any_obs.any():
         return np.zeros((positions.shape[0], 3))
@@ -116,11 +119,13 @@ def bone_lengths_median(positions: np.ndarray, observed: np.ndarray, bones: np.n
     bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     both = observed[:, bones[:, 0]] & observed[:, bones[:, 1]]  # (T, B)
     lengths = np.linalg.norm(positions[:, bones[:, 1]] - positions[:, bones[:, 0]], axis=-1)
-    lengths = np.where(both, lengths, np.nan)
-    out = np.full(bones.shape[0], np.nan)
-    seen = both.any(axis=0)
-    if seen.any():
-        out[seen] = np.nanmedian(lengths[:, seen], axis=0)
+    # median over the observed frames of each bone: sort with the unobserved ones last (np.nanmedian is 10x slower)
+    n = both.sum(axis=0)
+    srt = np.sort(np.where(both, lengths, np.inf), axis=0)
+    cols = np.arange(bones.shape[0])
+    lo, hi = np.maximum((n - 1) // 2, 0), np.maximum(n // 2, 0)
+    out = 0.5 * (srt[np.minimum(lo, len(srt) - 1), cols] + srt[np.minimum(hi, len(srt) - 1), cols]) if len(srt) else np.full(len(cols), np.nan)
+    out = np.where(n > 0, out, np.nan)
     return out
 
 
@@ -167,12 +172,17 @@ def normalise(
     reference_lengths: np.ndarray,
     root: int = KINECT_V2_ROOT,
     template: np.ndarray | None = None,
+    hips: tuple[int, int] = (_HIP_LEFT, _HIP_RIGHT),
+    scale_bones: tuple[int, ...] = KINECT_V2_SCALE_BONES,
 ) -> tuple[np.ndarray, WindowNorm]:
-    """Root-relative, scale- (and facing-) normalised window (T, J, 3), zeros where unobserved, and its ``WindowNorm``."""
+    """Root-relative, scale- (and facing-) normalised window (T, J, 3), zeros where unobserved, and its ``WindowNorm``.
+
+    ``root``, ``hips`` (fallback root) and ``scale_bones`` are joint indices of the window's
+    layout (the canonical ones for the shipped prior, ``streamfix.canonical``)."""
     positions = np.asarray(positions, dtype=np.float64)
     observed = np.asarray(observed, dtype=bool) & np.isfinite(positions).all(axis=-1)
-    r = root_trajectory(positions, observed, root)
-    k = body_scale(positions, observed, bones, reference_lengths)
+    r = root_trajectory(positions, observed, root, hips)
+    k = body_scale(positions, observed, bones, reference_lengths, scale_bones)
     y = (np.nan_to_num(positions) - r[:, None, :]) / k
     theta = 0.0
     if template is not None:

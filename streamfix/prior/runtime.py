@@ -26,9 +26,9 @@ import numpy as np
 
 from .normalize import WindowNorm, denormalise, normalise
 
-__all__ = ["Prior", "DEFAULT_CARD", "sha256_file", "load_default_prior"]
+__all__ = ["Prior", "DEFAULT_CARD", "sha256_file", "load_default_prior", "set_default_prior"]
 
-DEFAULT_CARD = Path(__file__).resolve().parent / "models" / "kinect_v2.json"
+DEFAULT_CARD = Path(__file__).resolve().parent / "models" / "canonical.json"
 
 
 def sha256_file(path: str | Path) -> str:
@@ -52,6 +52,7 @@ class Prior:
 
     card: dict
     directory: Path
+    card_name: str
     _encoder: object
     _decoder: object
     _jacobian: object
@@ -59,7 +60,7 @@ class Prior:
     # ------------------------------------------------------------------ loading
     @classmethod
     def load(cls, path: str | Path | None = None, *, threads: int = 1, verify: bool = True) -> "Prior":
-        """Load a card (``.json`` file, or a directory holding one ``*.json``); default: the shipped Kinect v2 model.
+        """Load a card (``.json`` file, or a directory holding one ``*.json``); default: the shipped canonical model.
 
         ``threads``: onnxruntime intra-op threads (1 = single-threaded, the default, so
         that many bodies can be solved on separate cores). ``verify`` checks each
@@ -86,7 +87,7 @@ class Prior:
                 if digest != entry["sha256"]:
                     raise ValueError(f"{f}: SHA-256 {digest} does not match the card's {entry['sha256']}")
             sessions.append(_session(f, threads))
-        return cls(card, directory, *sessions)
+        return cls(card, directory, card_path.name, *sessions)
 
     # --------------------------------------------------------------- properties
     @property
@@ -123,6 +124,17 @@ class Prior:
     def root_index(self) -> int:
         return int(self.card["normalisation"]["root_index"])
 
+    @property
+    def norm_kwargs(self) -> dict:
+        """``normalise`` keyword arguments of this model (root, fallback hips, scale bones) from the card."""
+        norm = self.card["normalisation"]
+        kw = {"root": int(norm["root_index"])}
+        if "hips" in norm:
+            kw["hips"] = tuple(int(i) for i in norm["hips"])
+        if "scale_bones_child_index" in norm:
+            kw["scale_bones"] = tuple(int(i) for i in norm["scale_bones_child_index"])
+        return kw
+
     # ------------------------------------------------------------ raw networks
     def encode(self, y: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """E(Y): normalised windows (B, T, J, 3) and masks (B, T, J) -> latents (B, L)."""
@@ -145,13 +157,16 @@ class Prior:
         x, jac = self._jacobian.run(["x", "jac"], feeds)
         return x, jac
 
-    def normal_equations(self, z: np.ndarray, w: np.ndarray, y: np.ndarray, c: np.ndarray) -> dict[str, np.ndarray]:
+    def normal_equations(
+        self, z: np.ndarray, w: np.ndarray, y: np.ndarray, c: np.ndarray, with_jacobian: bool = False
+    ) -> dict[str, np.ndarray]:
         """One Levenberg-Marquardt linearisation of Eq. (1) at (z, c), in one onnxruntime call.
 
         ``w`` (B, N) 0/1 observed coordinates, ``y`` (B, N) normalised observations,
         ``c`` (B, 3) translation (N = T*J*3). Returns float32 arrays ``x`` D(z) (B, T, J, 3),
         ``r`` = w (D(z) + c - y) (B, N), ``cost`` ||r||^2 (B,), ``gram`` (wJ)(wJ)^T (B, L, L),
-        ``jtr`` (wJ) r (B, L, 1) and ``h_zc`` (B, L, 3) (J = dD/dz).
+        ``jtr`` (wJ) r (B, L, 1) and ``h_zc`` (B, L, 3) (J = dD/dz); with ``with_jacobian`` also
+        ``jac`` J (B, L, N).
         """
         feeds = {
             "z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size),
@@ -159,7 +174,7 @@ class Prior:
             "y": np.asarray(y, dtype=np.float32),
             "c": np.asarray(c, dtype=np.float32),
         }
-        names = ["x", "r", "cost", "gram", "jtr", "h_zc"]
+        names = ["x", "r", "cost", "gram", "jtr", "h_zc"] + (["jac"] if with_jacobian else [])
         return dict(zip(names, self._jacobian.run(names, feeds)))
 
     def as_batch(self, window: np.ndarray, observed: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -189,9 +204,9 @@ class Prior:
     def normalise(self, windows: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[WindowNorm]]:
         """Metre windows (B, T, J, 3) + masks (B, T, J) -> normalised (B, T, J, 3), masks, per-window norms."""
         ys, norms = [], []
-        bones, ref, tmpl = self.bones, self.reference_lengths, self.facing_template
+        bones, ref, tmpl, kw = self.bones, self.reference_lengths, self.facing_template, self.norm_kwargs
         for w, o in zip(windows, observed):  # windows, not frames
-            y, n = normalise(w, o, bones, ref, self.root_index, tmpl)
+            y, n = normalise(w, o, bones, ref, template=tmpl, **kw)
             ys.append(y)
             norms.append(n)
         obs = np.asarray(observed, dtype=bool) & np.isfinite(windows).all(axis=-1)
@@ -210,7 +225,27 @@ class Prior:
         return out[0] if single else out
 
 
+_DEFAULT_PATH: str | None = None
+
+
+def set_default_prior(path: str | Path | None) -> None:
+    """Make ``path`` (a card or a directory holding one) the process-wide default prior; None = the shipped one.
+
+    What ``streamfix serve/clean --prior PATH`` call: everything that takes ``prior=None``
+    (the streaming bridge, ``prior_initial_guess``, ``fill_long_gaps``, ``limb_residuals``)
+    then uses it. The card is loaded and checked at once, so a bad path fails here.
+    """
+    global _DEFAULT_PATH
+    _DEFAULT_PATH = None if path is None else str(path)
+    _load_cached.cache_clear()
+    load_default_prior()
+
+
 @lru_cache(maxsize=4)
-def load_default_prior(path: str | None = None, threads: int = 1) -> Prior:
-    """The shipped (or given) prior, loaded once per process and shared."""
+def _load_cached(path: str | None, threads: int) -> Prior:
     return Prior.load(path, threads=threads)
+
+
+def load_default_prior(path: str | None = None, threads: int = 1) -> Prior:
+    """The given prior, else the one ``set_default_prior`` chose, else the shipped one; loaded once per process."""
+    return _load_cached(path if path is not None else _DEFAULT_PATH, threads)

@@ -17,47 +17,48 @@ from __future__ import annotations
 
 import json
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import torch
 
-from streamfix.skeletons import KINECT_V2
+from streamfix.canonical import CANONICAL_BONES, CANONICAL_HIPS, CANONICAL_JOINTS, CANONICAL_SCALE_BONES, LAYOUTS
+from streamfix.io.prior_takes import canonical_takes
 
 from .data import (
+    CANONICAL_NORM,
     HELD_OUT,
+    SOURCE_SHARES,
     MODEL_RATE_HZ,
     Take,
     cut_windows,
     facing_template,
-    load_takes,
     make_batch,
     mean_bone_lengths,
     resample_masked,
     split_takes,
 )
 from .model import DecoderJacobian, TemporalAutoencoder
-from .normalize import KINECT_V2_ROOT, KINECT_V2_SCALE_BONES, apply_norm, normalise
+from .normalize import apply_norm, normalise
 from .runtime import sha256_file
 
 __all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and_export"]
 
 
 class TrainConfig:
-    """Hyper-parameters (sizes scaled down from the paper's HDM05 model to ~2 000 frames of data)."""
+    """Hyper-parameters (sizes scaled down from the paper's HDM05 model; about 16 minutes on one shared core)."""
 
     def __init__(
         self,
-        epochs: int = 60,
+        epochs: int = 100,
         seed: int = 0,
         window: int = 64,
-        channels: int = 64,
+        channels: int = 96,
         latent: int = 32,
         levels: int = 4,
         batch: int = 64,
-        steps_per_epoch: int = 40,
+        steps_per_epoch: int = 60,
         lr: float = 2e-3,
         threads: int = 1,
         weight_decay: float = 0.01,
@@ -88,7 +89,7 @@ def held_out_windows(
         for p, m in zip(wp, wm):  # windows
             keep = m.copy()
             keep[:, rng.choice(n_j, size=int(round(drop_fraction * n_j)), replace=False)] = False
-            yi, norm = normalise(p, keep, bones, ref, template=template)
+            yi, norm = normalise(p, keep, bones, ref, template=template, **CANONICAL_NORM)
             ys.append(yi)
             ms.append(keep)
             yt.append(np.where(m[..., None], apply_norm(np.nan_to_num(p), norm), 0.0))
@@ -114,14 +115,16 @@ def train(
     torch.manual_seed(config.seed)
     gen = torch.Generator().manual_seed(config.seed)
     rng = np.random.default_rng(config.seed)
-    bones = KINECT_V2.bone_array
+    bones = CANONICAL_BONES
     ref = mean_bone_lengths(train_takes, bones)
     template = facing_template(train_takes, bones, ref)
-    model = TemporalAutoencoder(25, config.window, config.channels, config.latent, config.levels)
+    model = TemporalAutoencoder(len(CANONICAL_JOINTS), config.window, config.channels, config.latent, config.levels)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     total = config.epochs * config.steps_per_epoch
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, [int(0.75 * total), int(0.9 * total)], gamma=0.1)
-    held = held_out_windows(test_takes, bones, ref, config.window, 0.5, config.seed + 1, template) if test_takes else None
+    # every 4th held-out take with a ground truth (not Kinect v1): enough to follow the held-out loss
+    monitor = [t for t in test_takes if t.source != "uiprmd_kinect_v1"][::4]
+    held = held_out_windows(monitor, bones, ref, config.window, 0.5, config.seed + 1, template) if monitor else None
     history: dict = {"epoch": [], "train_loss": [], "held_out_loss": [], "held_out_rmse_dropped_m": []}
     t_start = time.perf_counter()
     for epoch in range(1, config.epochs + 1):
@@ -153,12 +156,13 @@ def train(
             history["held_out_rmse_dropped_m"].append(rmse)
             msg += f"  held-out loss {hl:.5f}  held-out D(E(Y)) RMSE on dropped joints (OTP 50%) {100 * rmse:.2f} cm"
         log(msg + f"  [{time.perf_counter() - t_start:.0f} s]")
+    history["seconds"] = round(time.perf_counter() - t_start, 1)
     history["reference_bone_lengths_m"] = ref.tolist()
     history["facing_template"] = np.round(template, 5).tolist()
     return model, history
 
 
-def export_onnx(model: TemporalAutoencoder, out_dir: str | Path, stem: str = "kinect_v2") -> dict[str, dict]:
+def export_onnx(model: TemporalAutoencoder, out_dir: str | Path, stem: str = "canonical") -> dict[str, dict]:
     """Export encoder, decoder and decoder-Jacobian with the legacy exporter (``dynamo=False``), batch dynamic."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -253,6 +257,18 @@ def add_gram_output(path: str | Path) -> tuple[list[str], list[str]]:
     return [i.name for i in g.input if i.name not in init_names], [o.name for o in g.output]
 
 
+#: Licence and provenance of each training source (model card; the shipped model uses only these).
+SOURCE_LICENCES = {
+    "uiprmd_vicon": "UI-PRMD (Vakanski et al., Data 2018), Vicon Plug-in-Gait markers -> joint centres; "
+    "PDDL 1.0 (public domain, any use)",
+    "uiprmd_kinect_v1": "UI-PRMD Kinect v1 skeletons of the same sessions; PDDL 1.0 (public domain, any use)",
+    "bvh": "CMU Graphics Lab mocap (subject 131: free for research and commercial use, not for resale) and "
+    "Xia et al. style takes via deep-motion-editing (BSD-2-Clause)",
+    "c3d_markers": "CMU Graphics Lab mocap subjects 85 and 135 marker C3D (free for research and commercial use)",
+    "kinect_v2": "microsoft/LabanotationSuite Kinect v2 recordings (MIT), tracked joints only",
+}
+
+
 def train_and_export(
     data_dir: str | Path,
     out_dir: str | Path,
@@ -260,69 +276,82 @@ def train_and_export(
     held_out: tuple[str, ...] = HELD_OUT,
     log: Callable[[str], None] = print,
     evaluate: bool = True,
-    include_markers: bool = False,
+    kinect_v1: bool = True,
 ) -> dict:
-    """Load ``data_dir``, train, export the three graphs and write the card ``<out>/kinect_v2.json``."""
-    takes = load_takes(data_dir, include_markers=include_markers)
+    """Load ``data_dir``, train, export the three graphs and write the card ``<out>/canonical.json``."""
+    takes = canonical_takes(data_dir, kinect_v1=kinect_v1)
     train_takes, test_takes = split_takes(takes, held_out)
     log(
-        f"{len(train_takes)} training takes ({sum(t.positions.shape[0] / t.rate_hz for t in train_takes):.1f} s), "
-        f"held out: {', '.join(t.name for t in test_takes) or 'none'}"
+        f"{len(train_takes)} training takes ({sum(t.duration_s for t in train_takes) / 60:.1f} min), "
+        f"{len(test_takes)} held out ({', '.join(sorted({t.group for t in test_takes})) or 'none'})"
     )
     model, history = train(train_takes, test_takes, config, log)
     out_dir = Path(out_dir)
     files = export_onnx(model, out_dir)
+    sources = {}
+    for t in train_takes:
+        rec = sources.setdefault(t.source, {"takes": 0, "minutes": 0.0, "licence": SOURCE_LICENCES.get(t.source, "?"),
+                                            "batch_share": SOURCE_SHARES.get(t.source)})
+        rec["takes"] += 1
+        rec["minutes"] += t.duration_s / 60
+    for rec in sources.values():
+        rec["minutes"] = round(rec["minutes"], 2)
     card = {
-        "name": "streamfix temporal-convolution autoencoder prior (Lohit et al.)",
-        "skeleton": "kinect_v2",
-        "n_joints": 25,
+        "name": "streamfix temporal-convolution autoencoder prior (Lohit et al.), canonical body",
+        "skeleton": "canonical",
+        "joints": list(CANONICAL_JOINTS),
+        "n_joints": len(CANONICAL_JOINTS),
         "window": config.window,
         "rate_hz": MODEL_RATE_HZ,
         "latent": config.latent,
         "channels": config.channels,
         "levels": config.levels,
         "files": files,
+        "layouts": {name: {"joints": lay.n_joints, "observes": [CANONICAL_JOINTS[i] for i in np.flatnonzero(lay.covered)]}
+                    for name, lay in LAYOUTS.items()},
         "normalisation": {
-            "root_joint": "SpineBase",
-            "root_index": KINECT_V2_ROOT,
-            "method": "x_norm = (x - root_t) / k; root_t = SpineBase (interpolated where missing; "
-            "hip midpoint / mean of observed joints if absent from the window); "
-            "k = median over observed scale bones of (median bone length / reference length), clipped to [0.5, 2]",
+            "root_joint": "pelvis",
+            "root_index": 0,
+            "hips": list(CANONICAL_HIPS),
+            "method": "layout -> canonical joints (streamfix.canonical), then x_norm = R_y(theta) (x - root_t) / k; "
+            "root_t = pelvis (midpoint of the hip centres; interpolated where missing; mean of observed joints if "
+            "absent from the window); k = median over observed scale bones of (median bone length / reference "
+            "length), clipped to [0.5, 2]; theta = facing angle about y onto facing_template",
             "reference_bone_lengths_m": history["reference_bone_lengths_m"],
-            "bones": KINECT_V2.bone_array.tolist(),
-            "scale_bones_child_index": list(KINECT_V2_SCALE_BONES),
+            "bones": CANONICAL_BONES.tolist(),
+            "scale_bones_child_index": list(CANONICAL_SCALE_BONES),
             "facing_template": history["facing_template"],
-            "facing": "turned about y by the 2-D Procrustes angle onto facing_template (mean Kinect v2 pose, "
-            "root-relative, scale-normalised, facing the sensor)",
+            "facing": "turned about y by the 2-D Procrustes angle onto facing_template (mean canonical pose of the "
+            "Kinect v2 takes, root-relative, scale-normalised, facing the sensor)",
             "unobserved_input": "0 in y and 0 in mask",
         },
         "training": {
-            "data": [
-                {"name": t.name, "source": t.source, "frames": int(t.positions.shape[0]), "rate_hz": t.rate_hz}
-                for t in train_takes
-            ],
-            "held_out": [t.name for t in test_takes],
-            "split": "whole takes held out (never frames of a training take)",
-            "observed": "BVH retargeted to Kinect v2: all joints; Kinect v2 CSV: tracked joints only"
-            + ("; CMU full-body marker C3D: joints approximated from markers "
-               "(streamfix.prior.data._CMU_MARKERS_TO_KINECT)" if include_markers else ""),
-            "augmentation": "rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring (x negated + joint swap), "
-            "speed x0.7..x1.4 by linear resampling, joint dropping (subsets, limbs, runs of frames)",
+            "sources": sources,
+            "minutes": round(sum(t.duration_s for t in train_takes) / 60, 2),
+            "takes": len(train_takes),
+            "held_out": sorted({t.group for t in test_takes}),
+            "split": "whole people (UI-PRMD subject 6) and whole takes held out, never frames of a training take",
+            "observed": "BVH retargeted: all joints; Kinect v2 CSV: tracked joints only; CMU marker C3D: joints from "
+            "markers (streamfix.io.prior_takes._CMU_MARKERS_TO_KINECT); UI-PRMD Vicon: Plug-in-Gait joint centres "
+            "(streamfix.io.prior_takes.plug_in_gait_joints); UI-PRMD Kinect v1: legs unobserved in m01/m05",
+            "augmentation": "rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring "
+            "(x negated + joint swap), speed x0.7..x1.4 by linear resampling, joint dropping (subsets, limbs, "
+            "partial layouts, runs of frames)",
             "loss": "masked (ambient) MSE over the data's observed joint-frames (Lohit et al. Sec. 4.2)",
             "config": config.as_dict(),
             "final_train_loss": history["train_loss"][-1],
             "final_held_out_loss": history["held_out_loss"][-1] if history["held_out_loss"] else None,
+            "seconds": history.get("seconds"),
             "torch": torch.__version__,
-            "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         },
-        "held_out_protocol": "streamfix.evaluation.occlusion at 30 Hz: each 64-frame window of a held-out take "
-        "loses joints for the whole window (random 25 % / 50 % = test OTP 75 / 50, or a whole limb); "
-        "rmse_m over every ground-truth joint-frame (observed ones are returned unchanged), rmse_dropped_m over "
-        "the dropped ones; methods nearest_joint (baseline), prior_encode D(E(Y)), prior_latent D(z*) "
-        "(Levenberg-Marquardt, 6 iterations)",
+        "held_out_protocol": "streamfix.evaluation.occlusion in canonical joints at 30 Hz: each 64-frame window of "
+        "a held-out take loses joints for the whole window (random 25 % / 50 % = test OTP 75 / 50, or a whole "
+        "limb of 4 joints); rmse_m over every ground-truth joint-frame (observed ones are returned unchanged), "
+        "rmse_dropped_m over the dropped ones; methods nearest_joint (baseline), prior_encode D(E(Y)), "
+        "prior_latent D(z*) (Levenberg-Marquardt, 8 iterations)",
         "held_out_scores": [],
     }
-    card_path = out_dir / "kinect_v2.json"
+    card_path = out_dir / "canonical.json"
     card_path.write_text(json.dumps(card, indent=1))
     if evaluate and test_takes:
         from streamfix.evaluation.occlusion import score_prior_on_takes
@@ -330,6 +359,51 @@ def train_and_export(
         card["held_out_scores"] = score_prior_on_takes(card_path, test_takes, seed=config.seed)
         card_path.write_text(json.dumps(card, indent=1))
         for rec in card["held_out_scores"]:
-            log(f"held-out {rec['take']:>16s} {rec['pattern']:>10s} OTP {rec['test_otp']:3.0f}%  {rec['method']:>12s}  RMSE {100 * rec['rmse_m']:.2f} cm")
-    log(f"wrote {card_path}")
+            log(f"held-out {rec['take']:>16s} {rec['pattern']:>10s} OTP {rec['test_otp']:3.0f}%  {rec['method']:>12s}  "
+                f"RMSE {100 * rec['rmse_m']:.2f} cm (dropped {100 * rec['rmse_dropped_m']:.2f})")
+    write_card_markdown(card, out_dir / "canonical.md")
+    log(f"wrote {card_path} and canonical.md")
     return card
+
+
+def write_card_markdown(card: dict, path: str | Path) -> None:
+    """The human-readable model card beside the JSON one (data, licences, normalisation, held-out scores, hashes)."""
+    tr = card["training"]
+    lines = [
+        f"# {card['name']}",
+        "",
+        f"Generated by `streamfix train-prior` from `{Path(path).stem}.json` (the machine-readable card, which "
+        "`streamfix.prior.runtime.Prior.load` checks); do not edit by hand.",
+        "",
+        f"Joints: {card['n_joints']} canonical ({', '.join(card['joints'])}); window {card['window']} frames at "
+        f"{card['rate_hz']:g} Hz; latent {card['latent']}; {card['channels']} channels x {card['levels']} levels.",
+        "",
+        "## Training data (whole people/takes held out: " + ", ".join(tr["held_out"]) + ")",
+        "",
+        "| source | takes | minutes | batch share | licence |",
+        "| --- | ---: | ---: | ---: | --- |",
+    ]
+    for name, src in tr["sources"].items():
+        lines.append(f"| {name} | {src['takes']} | {src['minutes']:.1f} | {src['batch_share']} | {src['licence']} |")
+    lines += [f"| **total** | {tr['takes']} | {tr['minutes']:.1f} | | |", "",
+              f"Observed joints: {tr['observed']}.", "", f"Augmentation: {tr['augmentation']}.", "",
+              f"Loss: {tr['loss']}. Config: `{json.dumps(tr['config'])}`; {tr.get('seconds')} s of training.", "",
+              "## Layouts", "", "| layout | joints | canonical joints observed |", "| --- | ---: | --- |"]
+    for name, lay in card["layouts"].items():
+        lines.append(f"| {name} | {lay['joints']} | {len(lay['observes'])}: {', '.join(lay['observes'])} |")
+    norm = card["normalisation"]
+    lines += ["", "## Normalisation", "", norm["method"] + ".", "", norm["facing"] + ".", "",
+              "## Held-out scores (RMSE over all joint-frames, cm; dropped joints only in brackets)", "",
+              card["held_out_protocol"] + ".", "",
+              "| take | pattern | OTP % | windows | nearest joint | D(E(Y)) | D(z*) |", "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    cells: dict = {}
+    for r in card["held_out_scores"]:
+        cells.setdefault((r["take"], r["pattern"], r["test_otp"]), {})[r["method"]] = r
+    for (take, pattern, otp), c in cells.items():
+        f = lambda m: f"{100 * c[m]['rmse_m']:.2f} ({100 * c[m]['rmse_dropped_m']:.1f})" if m in c else "-"  # noqa: E731
+        win = next(iter(c.values()))["windows"]
+        lines.append(f"| {take} | {pattern} | {otp:g} | {win} | {f('nearest_joint')} | {f('prior_encode')} | {f('prior_latent')} |")
+    lines += ["", "## Files", "", "| role | file | SHA-256 |", "| --- | --- | --- |"]
+    for role, entry in card["files"].items():
+        lines.append(f"| {role} | {entry['file']} | `{entry['sha256']}` |")
+    Path(path).write_text("\n".join(lines) + "\n")
