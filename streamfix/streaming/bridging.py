@@ -101,6 +101,7 @@ of hold/linear (:func:`streamfix.core.pca_gapfill.limit_excursion`; None = off).
 EXCURSION_HORIZON_S = 1.0
 """Seconds of the joint's observed samples next to a gap that set its range of motion."""
 PRIOR_INIT = "off"
+PRIOR_METHOD = "latent"  # fill from D(z*) ("latent") or D(E(Y)) ("encode", cheaper)
 """Prior as the solver's start on the frames entering a window: 'off', 'bridged' (only
 windows that had long gaps) or 'always' (every window with a missing sample, when the
 skeleton has a prior). See :meth:`BridgingWindowSolver.prior_start`."""
@@ -175,6 +176,7 @@ class BridgingWindowSolver:
         excursion_gain: float | None = EXCURSION_GAIN,
         foot_support: bool = True,
         undo_swaps: bool = True,
+        prior_method: str = PRIOR_METHOD,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -188,6 +190,9 @@ class BridgingWindowSolver:
         self.prior_init = prior_init
         self.foot_support = bool(foot_support)
         self.undo_swaps = bool(undo_swaps)
+        if prior_method not in ("latent", "encode"):
+            raise ValueError(f"prior_method must be 'latent' or 'encode', got {prior_method!r}")
+        self.prior_method = prior_method
         self.context_windows = float(context_windows)
         self.excursion_gain = None if excursion_gain is None else float(excursion_gain)
         self.base = base
@@ -202,20 +207,24 @@ class BridgingWindowSolver:
     def base_solver(self) -> Callable[..., Any]:
         return self.base
 
-    def prior_ok(self, n_joints: int) -> bool:
+    def prior_ok(self, n_joints: int, skeleton: str | None = None) -> bool:
+        """Whether the prior maps this layout (by registry name when known; joint counts
+        alone cannot tell a 32-marker C3D set from an Azure Kinect body)."""
         if self.use_prior is False:
             return False
-        if n_joints not in self._prior_ok:
+        key = (n_joints, skeleton)
+        if key not in self._prior_ok:
             try:
                 from ..prior.init import prior_available
 
-                self._prior_ok[n_joints] = bool(prior_available(n_joints))
+                self._prior_ok[key] = bool(prior_available(n_joints, skeleton=skeleton))
             except Exception:  # noqa: BLE001 - no prior runtime: simply no prior
-                self._prior_ok[n_joints] = False
-        return self._prior_ok[n_joints]
+                self._prior_ok[key] = False
+        return self._prior_ok[key]
 
     def bridge(
-        self, positions: np.ndarray, observed: np.ndarray, rate_hz: float, history: np.ndarray | None = None
+        self, positions: np.ndarray, observed: np.ndarray, rate_hz: float, history: np.ndarray | None = None,
+        skeleton: str | None = None,
     ) -> tuple[np.ndarray, np.ndarray, dict]:
         """Fill the long-missing samples of one window; returns (positions, bridged mask, counts by source)."""
         x = np.asarray(positions, dtype=np.float64)
@@ -258,10 +267,11 @@ class BridgingWindowSolver:
                     from ..core.pca_gapfill import PcaGapFiller
 
                     est, mask = PcaGapFiller(blackout_window=T + C).fit(h).fill(ext, ext_obs)
-                elif src == "prior" and self.prior_ok(J):
+                elif src == "prior" and self.prior_ok(J, skeleton):
                     from ..prior.init import fill_long_gaps
 
-                    est, mask = fill_long_gaps(ext, ext_obs, rate_hz, min_gap_frames=1)
+                    est, mask = fill_long_gaps(ext, ext_obs, rate_hz, min_gap_frames=1, skeleton=skeleton,
+                                               method=self.prior_method)
             except (np.linalg.LinAlgError, ValueError, FloatingPointError):
                 # a source that fails on this window (e.g. an SVD that does not converge):
                 # counted, and the next source is tried
@@ -374,7 +384,8 @@ class BridgingWindowSolver:
                 planted = (weight > 0.5) if planted is None else (planted | (weight > 0.5))
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
                 positions, confidence = x, conf
-        res = self._solve(x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history)
+        res = self._solve(x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
+                          None if skeleton is None else skeleton.name)
         if planted is None:
             return res
         rec = getattr(res, "recovered", None)
@@ -384,7 +395,8 @@ class BridgingWindowSolver:
             bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), dict(getattr(res, "bridged", None) or {}),
         )
 
-    def _solve(self, x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history):
+    def _solve(self, x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
+               skeleton_name=None):
         """Bridge long gaps, then the base solver (``__call__`` after the foot-support stage)."""
         kwargs: dict[str, Any] = {"state": state, "init": init}
         if config is not None:
@@ -392,17 +404,17 @@ class BridgingWindowSolver:
         if obs.all() or not obs.any():
             return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
         if not long_missing_mask(obs, len(obs)).any():
-            if self.prior_init == "always" and self.prior_ok(x.shape[1]):
+            if self.prior_init == "always" and self.prior_ok(x.shape[1], skeleton_name):
                 kwargs["state"], kwargs["init"] = self.prior_start(x, obs, rate_hz, state, init)
             return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
-        filled, bridged, counts = self.bridge(x, obs, rate_hz, history)
+        filled, bridged, counts = self.bridge(x, obs, rate_hz, history, skeleton_name)
         if not bridged.any():
             return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
         conf_in = np.where(bridged, self.fill_confidence, conf)
         if init is not None:
             init = np.where(bridged[..., None], filled, init)
             kwargs["init"] = init
-        if self.prior_init != "off" and self.prior_ok(x.shape[1]) and not (obs | bridged).all():
+        if self.prior_init != "off" and self.prior_ok(x.shape[1], skeleton_name) and not (obs | bridged).all():
             kwargs["state"], kwargs["init"] = self.prior_start(filled, obs | bridged, rate_hz, state, kwargs["init"])
         res = self.base(filled, conf_in, bones, bone_lengths, rate_hz, **kwargs)
         rec = getattr(res, "recovered", None)
