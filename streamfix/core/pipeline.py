@@ -112,7 +112,7 @@ class PipelineConfig:
     white_noise_ratio_max: float = 2.0  # at or above: do not smooth; blended in between
     smooth_window_s: float = 0.7
     smooth_short_s: float | None = 0.2  # None: one span (smooth_window_s) for every joint
-    smooth_bias_m: tuple[float, float] = (0.003, 0.008)
+    smooth_bias_m: tuple[float, float] = (0.006, 0.015)
     # stage 5: bone-length projection
     project_bones: bool = True
     projection: str = "pbd"
