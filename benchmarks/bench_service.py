@@ -67,6 +67,19 @@ def metrics(port: int) -> dict[str, float]:
         return parse_prometheus_text(r.read().decode())
 
 
+
+def wait_until_serving(proc: subprocess.Popen, m_port: int, timeout_s: float = 60.0) -> None:
+    """Block until ``serve``'s metrics endpoint answers; raise with its stderr if it died."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            metrics(m_port)
+            return
+        except OSError:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"serve did not start: {proc.stderr.read().decode()}")
+            time.sleep(0.1)
+
 def share_le(m: dict[str, float], name: str, bound: str) -> float:
     """Share of a histogram's observations <= bound (bound as printed, e.g. '0.002')."""
     count = m.get(f"{name}_count", 0.0)
@@ -99,15 +112,7 @@ def run(engine: str, n_bodies: int, seconds: float, warmup: float) -> dict:
     sub = ctx.socket(zmq.SUB)
     push = ctx.socket(zmq.PUSH)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                metrics(m_port)
-                break
-            except OSError:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"serve did not start: {proc.stderr.read().decode()}")
-                time.sleep(0.1)
+        wait_until_serving(proc, m_port)
         sub.setsockopt(zmq.RCVHWM, 0)
         for kind in ("live", "clean"):
             sub.setsockopt(zmq.SUBSCRIBE, topic_for(kind, "bench"))

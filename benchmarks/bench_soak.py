@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_service import bodies_source, free_port, metrics  # noqa: E402
+from bench_service import bodies_source, free_port, metrics, wait_until_serving  # noqa: E402
 from streamfix.frames import BodyFrame, SkeletonFrame  # noqa: E402
 from streamfix.skeletons import KINECT_V2  # noqa: E402
 from streamfix.transport.wire import decode_frame, encode_frame, encode_skeleton_message, topic_for  # noqa: E402
@@ -115,15 +115,7 @@ def run(args: argparse.Namespace) -> dict:
     rss: list[tuple[float, float]] = []
     done = threading.Event()
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                metrics(m_port)
-                break
-            except OSError:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"serve did not start: {proc.stderr.read().decode()}")
-                time.sleep(0.1)
+        wait_until_serving(proc, m_port)
         sub.setsockopt(zmq.RCVHWM, 0)
         sub.setsockopt(zmq.SUBSCRIBE, b"sf/live/")
         sub.connect(f"tcp://127.0.0.1:{out_port}")

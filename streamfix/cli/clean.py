@@ -113,14 +113,10 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 2
-    if args.prior is not None:
-        from ..prior.runtime import set_default_prior
+    from .options import apply_prior_option
 
-        try:
-            set_default_prior(args.prior)
-        except (OSError, ValueError, KeyError) as exc:
-            print(f"streamfix clean: --prior {args.prior}: {exc}", file=sys.stderr)
-            return 2
+    if not apply_prior_option("clean", args.prior):
+        return 2
 
     try:
         motion = read_motion(args.input)

@@ -129,14 +129,10 @@ def run(args: argparse.Namespace) -> int:
         level=getattr(logging, args.log_level), stream=sys.stderr, format="streamfix serve: %(message)s"
     )
     log = logging.getLogger("streamfix.service")
-    if args.prior is not None:
-        from ..prior.runtime import set_default_prior
+    from .options import apply_prior_option
 
-        try:
-            set_default_prior(args.prior)
-        except (OSError, ValueError, KeyError) as exc:
-            print(f"streamfix serve: --prior {args.prior}: {exc}", file=sys.stderr)
-            return 2
+    if not apply_prior_option("serve", args.prior):
+        return 2
 
     import zmq
 

@@ -279,6 +279,16 @@ def _fill_linear(positions: np.ndarray, obs: np.ndarray) -> np.ndarray:
     return filled
 
 
+def _along_time(x: np.ndarray, smooth) -> np.ndarray:
+    """``smooth(channels (T, n))`` applied to every channel of ``x`` that has data; a
+    never-observed channel (NaN after gap filling) stays NaN."""
+    seen = np.isfinite(x).all(axis=0)
+    out = x.copy()
+    if seen.any():
+        out[:, seen] = smooth(x[:, seen])
+    return out
+
+
 def savgol(
     positions: np.ndarray,
     rate_hz: float,
@@ -304,11 +314,7 @@ def savgol(
     order = min(polyorder, w - 1)
     if w <= order or w < 3:
         return x.copy()
-    seen = np.isfinite(x).all(axis=0)  # channels with any observation (after filling, all frames)
-    out = x.copy()
-    if seen.any():
-        out[:, seen] = savgol_filter(x[:, seen], w, order, axis=0, mode="interp")
-    return out
+    return _along_time(x, lambda c: savgol_filter(c, w, order, axis=0, mode="interp"))
 
 
 def running_median(positions: np.ndarray, window: int, observed: np.ndarray | None = None) -> np.ndarray:
@@ -386,10 +392,8 @@ def butterworth(
     if not 0 < cutoff_hz < nyquist:
         return x
     sos = butter(order, cutoff_hz / nyquist, btype="low", output="sos")
-    seen = np.isfinite(x).all(axis=0)
     n = x.shape[0]
+    if n < 2:
+        return x
     padlen = min(3 * (2 * len(sos) + 1), n - 1)
-    out = x.copy()
-    if seen.any() and n > 1:
-        out[:, seen] = sosfiltfilt(sos, x[:, seen], axis=0, padlen=padlen)
-    return out
+    return _along_time(x, lambda c: sosfiltfilt(sos, c, axis=0, padlen=padlen))
