@@ -40,7 +40,7 @@ def _fold_legs(x: np.ndarray, lo: int, hi: int, drop: float) -> np.ndarray:
     y[:, :, 1] -= (drop * ramp)[:, None]  # the whole body moves down, legs rigid: feet go below...
     legs = limb_layout(KV2).legs
     for s in range(2):  # ...then the sensor folds the legs up: feet rise above the floor
-        for c, lift in ((2, 1.5), (3, 1.5), (1, 0.8)):
+        for c, lift in ((2, 2.0), (3, 2.0), (1, 1.0)):  # feet 40 cm up at the deepest, as on UI-PRMD
             y[:, legs[s, c], 1] += (drop * lift * ramp)
     return y
 

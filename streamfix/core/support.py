@@ -50,10 +50,10 @@ __all__ = [
 class SupportConfig:
     """Knobs of :func:`plant_supporting_feet` (metres, seconds)."""
 
-    tol_lo_m: float = 0.04  # both feet above the floor by less than this: supported
-    tol_hi_m: float = 0.10  # ... by more than this: fully corrected
+    tol_lo_m: float = 0.08  # both feet above the floor by less than this: supported
+    tol_hi_m: float = 0.20  # ... by more than this: fully corrected
     floor_quantile: float = 0.1
-    min_run_s: float = 0.3  # shorter losses of support are jump flights, left alone
+    min_run_s: float = 0.6  # shorter losses of support are jumps and hops (flight up to ~0.5 s), left alone
     median_s: float = 0.3  # heights, floor and anchors from a running median this long
     max_wild_fraction: float = 0.35  # leg samples > wild_m from a 5-frame median: above this, do nothing
     wild_m: float = 0.10

@@ -346,7 +346,7 @@ def hann_weights(n: int) -> np.ndarray:
     return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
 
 
-HANDOVER_S = 1.0  # crossfade at a window hand-over, capped at the shared frames; see handover_weights
+HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
 
 
 def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None) -> np.ndarray:
@@ -364,10 +364,11 @@ def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: in
     steps the output. ``crossfade`` ``F <= K`` shortens the fade to the first ``F`` shared
     frames: the newer window then takes over sooner. The engine uses ``HANDOVER_S``: a
     longer fade hides hand-overs better but leaves more frames to the older window's edge,
-    which cost accuracy under heavy corruption (CMU 131_01, 30 Hz, 20 %: the full fade
-    put the clean output at 1.25x the whole-take solve, 4 frames at 1.17x). A taper by
-    position in the window gave the entering window about half the weight: a kink in the
-    clean output every hop.
+    which costs accuracy under heavy corruption; 0.17 s is the longest fade that keeps the
+    clean output within 1.25x of the whole-take solve at 20 % (``tests/test_e2e_quality.py``),
+    the seam is checked by ``tests/test_support_limbs.py`` and the benchmarks' seam ratio.
+    A taper by position in the window gave the entering window about half the weight: a
+    kink in the clean output every hop.
     """
     d = np.asarray(future, dtype=np.float64)
     K = max(int(lookahead) + 1 - int(hop), 1)
