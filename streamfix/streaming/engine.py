@@ -419,6 +419,7 @@ BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-
 BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
 BONE_SUPPORT_FRAMES = 4  # raw samples that must agree with a bone's mode before it is trusted
 BONE_SUPPORT_TOL_M = 0.005  # ... to within this (m)
+BONE_OWN_SUPPORT_S = 1.0  # tracked samples a bone needs to keep its own length (else inferred ones, the mirror's)
 HISTORY_S = 10.0
 """Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
 solvers with ``wants_history`` (PCA gap filling trains on it)."""
@@ -511,6 +512,7 @@ class _Body:
         self.clean_lengths: np.ndarray | None = None
         # per-frame bone lengths of the raw input where both ends are tracked (ring, NaN = none)
         self.raw_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
+        self.raw_bones_seen = np.full_like(self.raw_bones, np.nan)  # the same, inferred samples too
         self.raw_bones_end = 0  # absolute frame index up to which raw_bones is filled
         self.prior_lengths = prior_lengths
         self.live_path: LivePath | None = None
@@ -881,7 +883,10 @@ class StreamEngine:
     def _raw_history_lengths(self, body: _Body) -> np.ndarray | None:
         """Shorth-mode bone lengths over the last ``BONE_MEMORY_S`` of raw input, if well supported.
 
-        Only frames where both ends of a bone are *tracked* count. Trusted only when every
+        Frames where both ends of a bone are *tracked* count; a bone with less than
+        ``BONE_OWN_SUPPORT_S`` of them uses its *inferred* samples too, then a poorly seen
+        bone borrows its mirror's length (:func:`~streamfix.core.isometry.symmetric_lengths`).
+        Trusted only when every
         bone has at least ``BONE_SUPPORT_FRAMES`` samples within ``BONE_SUPPORT_TOL_M`` of
         its mode; otherwise None (the clean-history median or per-window estimate is
         used). Unlike the clean-output median this does not feed back on itself: a wrong
@@ -899,12 +904,22 @@ class StreamEngine:
             pos = win.positions[seg]
             lengths = np.linalg.norm(pos[:, self.bones[:, 1]] - pos[:, self.bones[:, 0]], axis=2)
             conf = win.confidence[seg]
-            tracked = np.minimum(conf[:, self.bones[:, 0]], conf[:, self.bones[:, 1]]) >= 1.0
+            low = np.minimum(conf[:, self.bones[:, 0]], conf[:, self.bones[:, 1]])
             rows = np.arange(first, win.end) % len(body.raw_bones)
-            body.raw_bones[rows] = np.where(tracked, lengths, np.nan)
+            body.raw_bones[rows] = np.where(low >= 1.0, lengths, np.nan)
+            body.raw_bones_seen[rows] = np.where(low > 0.0, lengths, np.nan)
             body.raw_bones_end = win.end
         est, support = length_mode_with_support(body.raw_bones, tolerance_m=BONE_SUPPORT_TOL_M)
-        est, support = symmetric_lengths(est, support, self._mirror_bones)
+        own = max(1, int(round(BONE_OWN_SUPPORT_S * self.cfg.rate_hz)))
+        thin = support < own
+        if thin.any():
+            # never a length from a handful of tracked frames: a limb the sensor mostly
+            # infers keeps consistent lengths in its inferred samples (seated_joints: the
+            # left shin's 7 tracked frames said 0.53 m, its 350 inferred ones 0.385 m)
+            est_all, support_all = length_mode_with_support(body.raw_bones_seen, tolerance_m=BONE_SUPPORT_TOL_M)
+            use = thin & (support_all > support)
+            est, support = np.where(use, est_all, est), np.where(use, support_all, support)
+        est, support = symmetric_lengths(est, support, self._mirror_bones, own_support=own)
         if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all():
             return est
         return None

@@ -1,0 +1,44 @@
+"""Bone lengths on a real Kinect v2 take whose legs the sensor mostly *infers*.
+
+seated_joints.csv: both legs are inferred in over 90 % of frames. The sensor keeps their
+lengths consistent (shins 0.385 m both sides); the engine once took the left shin's length
+from the 7 frames it was tracked (0.53 m) and stretched it for the rest of the session.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from streamfix.core.isometry import symmetric_lengths
+from streamfix.io.kinect_csv import read_kinect_csv
+from streamfix.limbs import mirror_bones
+from streamfix.streaming.engine import EngineConfig
+from streamfix.streaming.offline import clean_motion
+
+
+def test_inferred_legs_keep_symmetric_sensor_lengths(shared_data):
+    m = read_kinect_csv(shared_data / "kinect_v2" / "seated_joints.csv")
+    out, _ = clean_motion(m, EngineConfig(rate_hz=m.rate_hz))
+    bones = m.skeleton.bone_array
+    mirror = mirror_bones(m.skeleton)
+    names = m.skeleton.joint_names
+    settled = slice(m.n_frames // 3, None)  # after the first estimates (a few seconds of history)
+    L = np.median(np.linalg.norm(out.positions[settled][:, bones[:, 1]] - out.positions[settled][:, bones[:, 0]], axis=2), axis=0)
+    L_in = np.median(np.linalg.norm(m.positions[:, bones[:, 1]] - m.positions[:, bones[:, 0]], axis=2), axis=0)
+    inferred = (m.confidence == 0.5).mean(axis=0)
+    legs = [k for k, (a, b) in enumerate(bones) if mirror[k] != k and inferred[b] > 0.5]
+    assert legs, "the take's legs are inferred"
+    for k in legs:
+        assert abs(L[k] / L[mirror[k]] - 1) < 0.05, (names[bones[k, 0]], names[bones[k, 1]], L[k], L[mirror[k]])
+        assert abs(L[k] / L_in[k] - 1) < 0.1, (names[bones[k, 1]], L[k], L_in[k])
+
+
+def test_symmetric_lengths_borrows_only_for_thin_bones():
+    lengths = np.array([0.40, 0.53, 0.385, 0.25])
+    support = np.array([300, 7, 300, 5])
+    mirror = np.array([0, 2, 1, 3])  # bone 1 and 2 are a left/right pair; 0 and 3 midline
+    got, sup = symmetric_lengths(lengths, support, mirror, own_support=30)
+    assert got[0] == 0.40 and got[3] == 0.25  # midline bones untouched
+    assert got[2] == 0.385  # well seen: keeps its own
+    assert abs(got[1] - (0.53 * 7 + 0.385 * 300) / 307) < 1e-12  # thin: pooled, dominated by the well-seen side
+    both_thin, _ = symmetric_lengths(np.array([0.5, 0.3]), np.array([5, 6]), np.array([1, 0]), own_support=30)
+    assert list(both_thin) == [0.5, 0.3]  # neither side is well seen: nothing to borrow
