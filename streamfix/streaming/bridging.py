@@ -45,11 +45,10 @@ linear once it is (:func:`streamfix.core.pca_gapfill.limit_excursion`). Why: wit
 whole limb missing, PCA on seconds of history and the prior guess its pose from
 coincidental correlations with the rest of the body (the seated ankle's partners
 include the left hand, resting on the knee; the prior swings a still arm 20-30 cm).
-Measured fill (sources only, base solver replaced by interpolation) vs the sensor's
-values, MAE cm: seated 3 s leg 5.7 -> 1.7 (hold 2.1, linear 1.8), Ges04 still arm
-45 frames 20.5 -> 1.6 (linear 1.2), Ges01 waving arm 1 s at frames 95 / 60: 16.9 /
-18.0 (hold 28.3 / 41.0): a moving limb keeps most of its motion. Gain 0.5 gave 1.8,
-1.9, 17.3 / 13.4; 1.0 gave 3.3, 3.3, 18.7 / 5.7.
+The gain trades the two failure modes: larger lets a moving limb keep its motion
+through the gap, smaller keeps a still limb from wandering; the real-Kinect gap cases in
+``tests/test_integration_streaming_gaps.py`` (a seated leg missing 3 s, a still arm, a
+waving arm) hold the fill against hold, linear interpolation and low rank alone.
 
 The filled samples enter ``clean_window`` as observations with confidence
 :data:`FILL_CONFIDENCE` (so the robust fit and the bone projection may still move them,
