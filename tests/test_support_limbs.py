@@ -166,3 +166,21 @@ def test_no_seam_at_window_handovers(shared_data, monkeypatch):
         return d2[near[t]].mean() / d2[~near[t]].mean()
 
     assert ratio(out.positions) < 1.1
+
+
+def test_plant_window_on_a_layout_without_shoulders():
+    """Legs but no shoulders (a lower-body marker set): the window stage must still run
+    (its joint list was once built with float indices there)."""
+    from streamfix.skeletons import Skeleton
+    from streamfix.streaming.support import plant_window
+
+    legs = limb_layout(KV2).legs
+    keep = np.concatenate([[0], legs.ravel()])  # SpineBase and both legs
+    names = tuple(KV2.joint_names[j] for j in keep)
+    index = {j: i for i, j in enumerate(keep)}
+    bones = tuple((index[a], index[b]) for a, b in KV2.bones if a in index and b in index)
+    skel = Skeleton("legs_only", names, bones)
+    assert limb_layout(skel).shoulders is None and limb_layout(skel).legs is not None
+    truth = _standing(90)[:, keep]
+    fixed, weight = plant_window(truth, np.ones(truth.shape[:2], dtype=bool), skel, np.array(bones), None, RATE)
+    assert fixed.shape == truth.shape and not weight.any()

@@ -274,8 +274,11 @@ def holt(
 
 
 # --------------------------------------------------------------------------- offline filters
-def _fill_linear(positions: np.ndarray, obs: np.ndarray) -> np.ndarray:
-    filled, _ = interpolate_linear(positions, obs)
+def _filled(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+    """``(T, J, 3)`` float64 with missing samples filled linearly (edges hold the nearest
+    observation; a never-observed joint stays NaN): what the offline filters run on."""
+    positions = np.asarray(positions, dtype=np.float64)
+    filled, _ = interpolate_linear(positions, observed_mask(positions, observed))
     return filled
 
 
@@ -302,9 +305,7 @@ def savgol(
     observation) so that they neither poison the fit nor stay missing; a joint never
     observed stays NaN. A polynomial of degree <= ``polyorder`` passes unchanged.
     """
-    positions = np.asarray(positions, dtype=np.float64)
-    obs = observed_mask(positions, observed)
-    x = _fill_linear(positions, obs)
+    x = _filled(positions, observed)
     n = x.shape[0]
     w = odd_window(window_s, rate_hz, minimum=polyorder + 2 if polyorder % 2 else polyorder + 1)
     if n < 2:
@@ -385,9 +386,7 @@ def butterworth(
     filled linearly first; a never-observed joint stays NaN. Needs the whole take (not
     causal); a cut-off at or above Nyquist returns the filled input.
     """
-    positions = np.asarray(positions, dtype=np.float64)
-    obs = observed_mask(positions, observed)
-    x = _fill_linear(positions, obs)
+    x = _filled(positions, observed)
     nyquist = 0.5 * float(rate_hz)
     if not 0 < cutoff_hz < nyquist:
         return x

@@ -149,6 +149,18 @@ def long_missing_mask(observed: np.ndarray, n_frames: int | None = None) -> np.n
     return long_
 
 
+def _with_recovered(res: Any, mask: np.ndarray, bridged: dict | None = None) -> WindowOutput:
+    """The solver's result with ``mask`` ``(T, J)`` added to its recovered joints (and
+    ``bridged`` counts, when given, in place of its own)."""
+    rec = getattr(res, "recovered", None)
+    rec = mask.copy() if rec is None else (np.asarray(rec, dtype=bool) | mask)
+    counts = bridged if bridged is not None else dict(getattr(res, "bridged", None) or {})
+    return WindowOutput(
+        np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
+        bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), counts,
+    )
+
+
 class BridgingWindowSolver:
     """Window solver: bridge long gaps (PCA on history, prior D(z*), hold), then ``base``.
 
@@ -370,9 +382,7 @@ class BridgingWindowSolver:
 
             # exchanged back, not flagged recovered: they are observed samples relabelled,
             # and the clean history must keep them so the next window sees the same labels
-            x, swapped = unswap_window(x, obs, skeleton, rate_hz, history)
-            if swapped.any():
-                positions = x
+            x, _ = unswap_window(x, obs, skeleton, rate_hz, history)
         if self.foot_support and skeleton is not None:
             # legs the sensor folded up while a foot must be on the floor (streaming/support.py);
             # undone before the window pipeline, which then smooths the fix with everything else
@@ -380,45 +390,30 @@ class BridgingWindowSolver:
 
             x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history, trusted=conf >= 1.0)
             if weight.any():
-                planted = (weight > 0.5) if planted is None else (planted | (weight > 0.5))
+                planted = weight > 0.5
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
-                positions, confidence = x, conf
-        res = self._solve(x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
+        res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
-        if planted is None:
-            return res
-        rec = getattr(res, "recovered", None)
-        rec = planted.copy() if rec is None else (np.asarray(rec, dtype=bool) | planted)
-        return WindowOutput(
-            np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
-            bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), dict(getattr(res, "bridged", None) or {}),
-        )
+        return res if planted is None else _with_recovered(res, planted)
 
-    def _solve(self, x, positions, confidence, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
-               skeleton_name=None):
-        """Bridge long gaps, then the base solver (``__call__`` after the foot-support stage)."""
+    def _solve(self, x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history, skeleton_name=None):
+        """Bridge long gaps, then the base solver (``__call__`` after the real-sensor stages)."""
         kwargs: dict[str, Any] = {"state": state, "init": init}
         if config is not None:
             kwargs["config"] = config
         if obs.all() or not obs.any():
-            return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
+            return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
         if not long_missing_mask(obs, len(obs)).any():
             if self.prior_init == "always" and self.prior_ok(x.shape[1], skeleton_name):
                 kwargs["state"], kwargs["init"] = self.prior_start(x, obs, rate_hz, state, init)
-            return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
+            return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
         filled, bridged, counts = self.bridge(x, obs, rate_hz, history, skeleton_name)
         if not bridged.any():
-            return self.base(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
+            return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
         conf_in = np.where(bridged, self.fill_confidence, conf)
         if init is not None:
             init = np.where(bridged[..., None], filled, init)
             kwargs["init"] = init
         if self.prior_init != "off" and self.prior_ok(x.shape[1], skeleton_name) and not (obs | bridged).all():
             kwargs["state"], kwargs["init"] = self.prior_start(filled, obs | bridged, rate_hz, state, kwargs["init"])
-        res = self.base(filled, conf_in, bones, bone_lengths, rate_hz, **kwargs)
-        rec = getattr(res, "recovered", None)
-        rec = bridged.copy() if rec is None else (np.asarray(rec, dtype=bool) | bridged)
-        return WindowOutput(
-            np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
-            bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), counts,
-        )
+        return _with_recovered(self.base(filled, conf_in, bones, bone_lengths, rate_hz, **kwargs), bridged, counts)

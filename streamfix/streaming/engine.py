@@ -132,7 +132,6 @@ __all__ = [
     "WindowSolver",
     "alm_window_solver",
     "default_window_solver",
-    "hann_weights",
     "handover_weights",
     "HANDOVER_S",
     "Histogram",
@@ -338,12 +337,6 @@ def _with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> An
             if new_inner is not inner:
                 return dataclasses.replace(config, **{key: new_inner})
     return config
-
-
-def hann_weights(n: int) -> np.ndarray:
-    """Overlap-add taper ``1e-3 + sin^2(pi (i + 1/2) / n)``, ``i = 0..n-1`` (never 0)."""
-    i = np.arange(n, dtype=np.float64)
-    return 1e-3 + np.sin(np.pi * (i + 0.5) / n) ** 2
 
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights

@@ -69,7 +69,7 @@ def plant_window(
     h = np.zeros((0, J, 3)) if history is None or len(history) == 0 else np.asarray(history, dtype=np.float64)
     ok = observed if trusted is None else observed & trusted
     ext = np.concatenate([h, np.where(ok[..., None], x, np.nan)])
-    need = np.unique(np.concatenate([legs.ravel(), [] if layout.shoulders is None else layout.shoulders]))
+    need = legs.ravel() if layout.shoulders is None else np.concatenate([legs.ravel(), layout.shoulders])
     complete = np.isfinite(ext[:, need]).all(axis=(1, 2))
     if complete[len(h):].sum() < 2:
         return x, weight
