@@ -14,9 +14,14 @@ The model, per frame ``t`` (heights along the body's up direction ``u``, metres)
 * floor ``f`` = a low quantile of the lower foot's height over the context the caller
   has (the body's history and the window: the camera does not move);
 * support loss ``g(t) = min(h_L(t), h_R(t)) - f``; correction weight
-  ``w(t) = smoothstep((g - tol_lo) / (tol_hi - tol_lo))``, set to 0 on runs shorter
-  than ``min_run`` frames (jump flights, stepping noise) unless they reach the end of
-  the context (still going on);
+  ``w(t) = smoothstep((g - tol_lo) / (tol_hi - tol_lo))`` times how *folded* the legs
+  are: the hips' height above the lower foot against the leg length (thigh + shin),
+  full below ``folded_ratio[0]``, none above ``folded_ratio[1]``. The failure has both
+  signs (feet up and legs tucked under the body); a person with straight legs seen
+  against a floor estimated too low (the history held a drifting inferred leg) has
+  only the first, and planting them then walked every later window into the ground.
+  Runs shorter than ``min_run`` frames (jumps, stepping noise) are set to 0 unless
+  they reach the end of the context (still going on);
 * each ankle and foot is pulled, with weight ``w``, to where that foot last stood on
   the floor (``h - f < tol_lo / 2``, so not a frame where it was already rising; the
   next such frame if none came before; straight down to the floor if it never did);
@@ -55,6 +60,7 @@ class SupportConfig:
     floor_quantile: float = 0.1
     min_run_s: float = 0.6  # shorter losses of support are jumps and hops (flight up to ~0.5 s), left alone
     median_s: float = 0.3  # heights, floor and anchors from a running median this long
+    folded_ratio: tuple[float, float] = (0.6, 0.8)  # hips-to-lower-foot height / leg length: folded .. not
     max_wild_fraction: float = 0.35  # leg samples > wild_m from a 5-frame median: above this, do nothing
     wild_m: float = 0.10
     axis_snap_cos: float = 0.85  # snap the up direction to a coordinate axis within ~32 deg
@@ -82,7 +88,7 @@ def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray 
 
 def estimate_floor(foot_heights: np.ndarray, quantile: float = 0.1) -> float:
     """Floor height (m along up) from ``(T, 2)`` foot heights: a low quantile of the lower foot."""
-    low = np.nanmin(foot_heights, axis=1)
+    low = np.fmin(foot_heights[:, 0], foot_heights[:, 1])  # the lower foot; NaN only if both are
     low = low[np.isfinite(low)]
     return float(np.quantile(low, quantile)) if low.size else float("nan")
 
@@ -102,11 +108,16 @@ def _drop_short_runs(active: np.ndarray, min_run: int) -> np.ndarray:
     return out
 
 
-def support_weight(foot_heights: np.ndarray, floor: float, cfg: SupportConfig, rate_hz: float) -> np.ndarray:
-    """Correction weight ``(T,)`` in [0, 1]: how surely both feet are wrongly off the floor."""
-    g = np.nanmin(foot_heights, axis=1) - floor
+def support_weight(
+    foot_heights: np.ndarray, floor: float, cfg: SupportConfig, rate_hz: float, folded: np.ndarray | None = None
+) -> np.ndarray:
+    """Correction weight ``(T,)`` in [0, 1]: how surely both feet are wrongly off the floor
+    (times ``folded`` ``(T,)`` in [0, 1], how tucked up the legs are, when given)."""
+    g = np.fmin(foot_heights[:, 0], foot_heights[:, 1]) - floor
     z = np.clip((g - cfg.tol_lo_m) / (cfg.tol_hi_m - cfg.tol_lo_m), 0.0, 1.0)
     w = np.where(np.isfinite(z), z * z * (3.0 - 2.0 * z), 0.0)
+    if folded is not None:
+        w = w * folded
     keep = _drop_short_runs(w > 0, int(round(cfg.min_run_s * rate_hz)))
     return np.where(keep, w, 0.0)
 
@@ -148,8 +159,8 @@ def plant_supporting_feet(
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Pull both feet back onto the floor where the sensor lifted both (module doc).
 
-    ``leg_lengths`` ``(2, 2)`` thigh and shin lengths (m) per side (None = medians of the
-    input). ``floor`` None = :func:`estimate_floor` of the input. Returns the corrected
+    ``leg_lengths`` ``(2, 2)`` thigh and shin lengths (m) per side (None or not finite =
+    medians of the input). ``floor`` None = :func:`estimate_floor` of the input. Returns the corrected
     positions ``(T, J, 3)``, the weight ``(T,)`` applied to the knee, ankle and foot of both
     legs, and the floor used. Joints other than knees, ankles and feet are not changed.
     """
@@ -169,7 +180,15 @@ def plant_supporting_feet(
         floor = estimate_floor(heights, cfg.floor_quantile)
     if not np.isfinite(floor):
         return x, np.zeros(len(x)), floor
-    w = support_weight(heights, floor, cfg, rate_hz)
+    if leg_lengths is None or not np.all(np.isfinite(leg_lengths)):
+        leg_lengths = np.array([[np.nanmedian(np.linalg.norm(x[:, legs[s, a + 1]] - x[:, legs[s, a]], axis=1))
+                                 for a in range(2)] for s in range(2)])
+    hips = ref[:, legs[:, 0]].mean(axis=1) @ up
+    folded = (hips - np.fmin(heights[:, 0], heights[:, 1])) / max(float(np.mean(leg_lengths.sum(axis=1))), 1e-6)
+    lo, hi = cfg.folded_ratio
+    zf = np.clip((hi - folded) / max(hi - lo, 1e-12), 0.0, 1.0)
+    fold = np.where(np.isfinite(zf), zf * zf * (3.0 - 2.0 * zf), 0.0)
+    w = support_weight(heights, floor, cfg, rate_hz, fold)
     if not w.any():
         return x, w, floor
     wc = w[:, None]
@@ -182,17 +201,14 @@ def plant_supporting_feet(
         A, F = x[:, ankle], x[:, foot]
         A_new = A + wc * (np.where(have, ref[at, ankle], A + drop) - A)
         F_new = F + wc * (np.where(have, ref[at, foot], F + drop) - F)
-        if leg_lengths is not None and np.all(np.isfinite(leg_lengths[s])):
-            thigh, shin = float(leg_lengths[s, 0]), float(leg_lengths[s, 1])
-        else:
-            thigh = float(np.nanmedian(np.linalg.norm(x[:, knee] - x[:, hip], axis=1)))
-            shin = float(np.nanmedian(np.linalg.norm(x[:, ankle] - x[:, knee], axis=1)))
+        thigh, shin = float(leg_lengths[s, 0]), float(leg_lengths[s, 1])
         toe = F_new - A_new
         toe = toe - (toe @ up)[:, None] * up
         weak = np.linalg.norm(toe, axis=1) < 1e-3  # no foot joint: bend the way the sensor's knee does
         bend = np.where(weak[:, None], x[:, knee] - x[:, hip], toe)
         K_new = two_bone_ik(ref[:, hip], A_new, thigh, shin, bend)
-        sel = w > 0
+        sel = (w > 0) & np.isfinite(K_new).all(axis=1) & np.isfinite(A_new).all(axis=1) & np.isfinite(F_new).all(axis=1)
+        w = np.where(sel | (w <= 0), w, 0.0)  # no finite fix (a joint missing): untouched
         x[sel, knee] = x[sel, knee] + wc[sel] * (K_new[sel] - x[sel, knee])
         x[sel, ankle] = A_new[sel]
         x[sel, foot] = F_new[sel]

@@ -5,7 +5,7 @@ A window is 2 s; a squat or a sit lasts longer, and the floor and where each foo
 stood are facts about the past. So the window is extended by the body's clean history
 (the engine's ``history=``, recovered samples NaN) before the floor, the up direction and
 the anchors are found, and only the window's rows are returned. Frames where a leg joint
-is missing are left alone (their weight is 0).
+is missing or not trusted are left alone (their weight is 0) but keep their place in time.
 """
 from __future__ import annotations
 
@@ -70,18 +70,20 @@ def plant_window(
     ok = observed if trusted is None else observed & trusted
     ext = np.concatenate([h, np.where(ok[..., None], x, np.nan)])
     need = legs.ravel() if layout.shoulders is None else np.concatenate([legs.ravel(), layout.shoulders])
-    complete = np.isfinite(ext[:, need]).all(axis=(1, 2))
-    if complete[len(h):].sum() < 2:
+    # a frame without every leg joint trusted makes no decision (NaN heights), but keeps its
+    # place on the timeline: the minimum run length and the anchors are about time
+    unusable = ~np.isfinite(ext[:, need]).all(axis=(1, 2))
+    ext[np.ix_(unusable, legs.ravel())] = np.nan
+    if (~unusable[len(h):]).sum() < 2:
         return x, weight
-    up = up_direction(ext[complete], legs, layout.shoulders, cfg.axis_snap_cos)
-    fixed, w, _ = plant_supporting_feet(ext[complete], legs, up, rate_hz, _leg_lengths(legs, bones, bone_lengths), cfg)
-    rows = np.flatnonzero(complete)
-    mine = rows >= len(h)
-    if not w[mine].any():
+    up = up_direction(ext[~unusable], legs, layout.shoulders, cfg.axis_snap_cos)
+    fixed, w, _ = plant_supporting_feet(ext, legs, up, rate_hz, _leg_lengths(legs, bones, bone_lengths), cfg)
+    w = w[len(h):]
+    if not w.any():
         return x, weight
-    out = x.copy()
-    t = rows[mine] - len(h)
     cols = legs[:, 1:].ravel()
-    out[t[:, None], cols[None, :]] = fixed[mine][:, cols]
-    weight[t[:, None], cols[None, :]] = w[mine][:, None]
+    rows = np.flatnonzero(w > 0)
+    out = x.copy()
+    out[np.ix_(rows, cols)] = fixed[len(h):][np.ix_(rows, cols)]
+    weight[np.ix_(rows, cols)] = w[rows, None]
     return out, weight
