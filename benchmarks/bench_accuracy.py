@@ -6,7 +6,11 @@ Runs, with fixed seeds:
   below ``wang``) and at 30 Hz (every method: streamfix below every baseline and
   below ``yang`` at every level; ABE below ``wang``);
 * gap protocol at 30 Hz (gap_mae below linear and spline at 10 and 20 %);
-* every Kinect v2 file (jitter cut >= median_savgol's, bone-length CV cut >= yang's).
+* every Kinect v2 file (jitter cut >= median_savgol's, bone-length CV cut >= yang's), and
+  issue 8's real-Kinect bars: tracked joints moved on average at most 1.5x what
+  median_savgol moves them, bone-length CV at most 0.1x the input's, and no bone of an
+  inferred limb more than 5 % from its left/right counterpart
+  (:func:`streamfix.core.metrics.inferred_bone_asymmetry`).
 
 Usage: ``python benchmarks/bench_accuracy.py [--seed N] [--json OUT]``. Writes
 ``benchmarks/results/accuracy.json`` (every record) and ``accuracy.md`` (what it printed).
@@ -34,6 +38,9 @@ from streamfix.evaluation.kinect import run_kinect  # noqa: E402
 from streamfix.evaluation.noise_gaps import run_gaps, run_noise  # noqa: E402
 
 TABLE_II = {5: 0.004, 10: 0.006, 15: 0.007, 20: 0.010, 80: 0.040}
+TRACKED_SHIFT_MAX = 1.5  # issue 8: x median_savgol's mean move of tracked joint-frames
+BONE_CV_MAX = 0.1  # issue 8: x the input's bone-length CV
+INFERRED_ASYMMETRY_MAX = 0.05  # issue 8: inferred limb's bone vs its mirror, fraction
 BASELINES = ["input", "yang", "li", "wang", "one_euro", "holt", "savgol", "median_savgol", "linear", "spline"]
 
 
@@ -125,6 +132,18 @@ def _main(tee: _Tee) -> int:
               f"{Path(f).name}: bone CV ratio {sf['bone_cv_ratio']:.3f} > yang {ya['bone_cv_ratio']:.3f}")
         print(f"  {Path(f).name:<26} jitter after/before {sf['jitter_ratio']:.3f} (median_savgol "
               f"{ms['jitter_ratio']:.3f})  bone CV after/before {sf['bone_cv_ratio']:.3f} (yang {ya['bone_cv_ratio']:.3f})")
+        # issue 8, real Kinect CSVs: tracked joints barely moved, bones steady, inferred limbs symmetric
+        moved = sf["tracked_shift_m"] / ms["tracked_shift_m"] if ms["tracked_shift_m"] else float("inf")
+        check(moved <= TRACKED_SHIFT_MAX, f"{Path(f).name}: tracked joints moved {moved:.2f}x median_savgol's "
+                                          f"(bar {TRACKED_SHIFT_MAX})")
+        check(sf["bone_cv_ratio"] <= BONE_CV_MAX, f"{Path(f).name}: bone CV ratio {sf['bone_cv_ratio']:.3f} > {BONE_CV_MAX}")
+        asym = sf.get("inferred_asymmetry")
+        if asym is not None:
+            check(asym <= INFERRED_ASYMMETRY_MAX,
+                  f"{Path(f).name}: an inferred limb's bone is {100 * asym:.1f} % off its mirror (bar {100 * INFERRED_ASYMMETRY_MAX:.0f} %)")
+        print(f"  {'':<26} tracked joints moved {moved:.2f}x median_savgol's (bar {TRACKED_SHIFT_MAX})  bone CV "
+              f"after/before {sf['bone_cv_ratio']:.3f} (bar {BONE_CV_MAX})  inferred limb vs mirror "
+              + ("-" if asym is None else f"{100 * asym:.1f} %") + f" (bar {100 * INFERRED_ASYMMETRY_MAX:.0f} %)")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(recs, indent=1, default=float))

@@ -67,3 +67,28 @@ def test_metrics_ignore_nan_and_check_shapes():
     assert metrics.aje(pred, gt) == pytest.approx(0.0)
     with pytest.raises(ValueError, match=r"\(4, 3, 3\)"):
         metrics.aje(pred[:, :2], gt)
+
+
+def _two_arms(T=20, left_len=0.30, right_len=0.30):
+    """Joints: 0 chest, 1 left elbow, 2 right elbow; bones chest->elbows (mirrors of each other)."""
+    x = np.zeros((T, 3, 3))
+    x[:, 1, 0] = -left_len
+    x[:, 2, 0] = right_len
+    return x
+
+
+def test_inferred_bone_asymmetry_measures_the_inferred_limb_against_its_mirror():
+    bones = np.array([[0, 1], [0, 2]])
+    mirror = np.array([1, 0])
+    inferred = np.zeros((20, 3), dtype=bool)
+    inferred[5:, 1] = True  # the left elbow is guessed for 15 frames
+    stretched = _two_arms(left_len=0.36)  # 20 % longer than its tracked twin
+    assert metrics.inferred_bone_asymmetry(stretched, inferred, bones, mirror) == pytest.approx(0.2)
+    assert metrics.inferred_bone_asymmetry(_two_arms(), inferred, bones, mirror) == pytest.approx(0.0)
+    # too few inferred frames, or no mirror: nothing to judge
+    few = np.zeros_like(inferred)
+    few[:3, 1] = True
+    assert np.isnan(metrics.inferred_bone_asymmetry(stretched, few, bones, mirror))
+    assert np.isnan(metrics.inferred_bone_asymmetry(stretched, inferred, bones, np.array([0, 1])))
+    with pytest.raises(ValueError, match="mirror"):
+        metrics.inferred_bone_asymmetry(stretched, inferred, bones, np.array([1]))

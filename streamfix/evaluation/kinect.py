@@ -9,6 +9,7 @@ For each file and method, a record::
      inferred_shift_m,                               # mean |output - input| on inferred joint-frames
      tracked_shift_m,                                # same on tracked joint-frames
      inferred_bone_cv, inferred_bone_cv_input,       # bone CV over frames with an inferred joint
+     inferred_asymmetry, inferred_asymmetry_input,   # worst inferred-limb bone vs its mirror (fraction)
      time_s}
 
 ``*_ratio`` = after / before (lower is better). The ``level`` argument is ignored.
@@ -20,6 +21,7 @@ import time
 import numpy as np
 
 from ..core import metrics
+from ..limbs import mirror_bones
 from .registry import METHODS, load_motion, run_method
 
 __all__ = ["run_kinect", "PROTOCOLS"]
@@ -29,6 +31,10 @@ def _mean_shift(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
     if not mask.any():
         return None
     return float(np.nanmean(np.linalg.norm(a - b, axis=2)[mask]))
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> list[dict]:
@@ -47,6 +53,8 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
         jit_in = metrics.jitter(x)
         cv_in = metrics.bone_length_cv(x, bones)
         cv_inf_in = metrics.bone_length_cv(x, bones, any_inf) if any_inf.sum() >= 2 else None
+        mirror = mirror_bones(motion.skeleton)
+        asym_in = metrics.inferred_bone_asymmetry(x, inferred, bones, mirror)
         for name in methods:
             t0 = time.perf_counter()
             y = run_method(name, x, conf, bones, motion.rate_hz, skeleton=motion.skeleton)
@@ -76,6 +84,8 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
                 "tracked_shift_m": _mean_shift(y, x, tracked),
                 "inferred_bone_cv": metrics.bone_length_cv(y_obs, bones, any_inf) if any_inf.sum() >= 2 else None,
                 "inferred_bone_cv_input": cv_inf_in,
+                "inferred_asymmetry": _finite(metrics.inferred_bone_asymmetry(y, inferred, bones, mirror)),
+                "inferred_asymmetry_input": _finite(asym_in),
                 "time_s": dt,
             })
     return records
