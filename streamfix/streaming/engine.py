@@ -419,6 +419,7 @@ BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-
 BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
 BONE_SUPPORT_FRAMES = 4  # raw samples that must agree with a bone's mode before it is trusted
 BONE_SUPPORT_TOL_M = 0.005  # ... to within this (m)
+GUESSED_SHARE_POOLED = 0.1  # share of a bone's samples with an inferred end beyond which it pools with its mirror
 BONE_OWN_SUPPORT_S = 1.0  # tracked samples a bone needs to keep its own length (else inferred ones, the mirror's)
 HISTORY_S = 10.0
 """Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
@@ -929,7 +930,12 @@ class StreamEngine:
             est_all, support_all = length_mode_with_support(body.raw_bones_seen, tolerance_m=BONE_SUPPORT_TOL_M)
             use = thin & (support_all > support)
             est, support = np.where(use, est_all, est), np.where(use, support_all, support)
-        est, support = symmetric_lengths(est, support, self._mirror_bones, own_support=own)
+        # a limb the sensor has been guessing shares its lengths with its mirror (see
+        # symmetric_lengths): its own samples, however many, are the sensor's guesses
+        seen = np.isfinite(body.raw_bones_seen).sum(axis=0)
+        guessed = seen - np.isfinite(body.raw_bones).sum(axis=0)
+        pool = guessed >= GUESSED_SHARE_POOLED * np.maximum(seen, 1)
+        est, support = symmetric_lengths(est, support, self._mirror_bones, own_support=own, pool=pool & (guessed > 0))
         if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all():
             return est
         return None
