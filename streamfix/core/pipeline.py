@@ -59,8 +59,14 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    far as a tracked one. Measured against the Gauss-Newton step of Eq. (20) with
    Z2 = 0 (:func:`project_bone_lengths`, ``projection="gauss_newton"``), which has no
    line search and left Kinect bone CV at 0.01-0.12 of the input (more steps made it
-   worse on some files), 50 iterations reach 0.000-0.003 and lower AJE and ABE on
-   every CMU/Xia case tried.
+   worse on some files), 50 iterations lower AJE and ABE on every CMU/Xia case tried.
+   **Noisy joints take the correction** (:func:`projection_inverse_mass`): a joint whose
+   window residual scale (:func:`joint_noise_scale`) is clearly above the body's typical
+   joint's moves in proportion to its variance (a Kinect thumb or hand, not the wrist,
+   shoulder and spine behind it), and on noisy joints the correction is smoothed over
+   ``projection_smooth_s`` (:func:`smooth_projection`): a steady length correction
+   applied along a short bone whose direction jitters would add jitter. Exact samples
+   (mocap) keep equal shares and the exact projection.
 
 How well it does, against what, is measured by the benchmarks and written to
 ``benchmarks/results/`` (``accuracy.md`` for the paper's protocols, ``paired.md`` against
@@ -119,6 +125,9 @@ class PipelineConfig:
     projection_iterations: int = 50
     projection_steps: int = 4
     projection_gamma: float = 1e4
+    projection_noise_floor_m: float | None = 0.001  # None: shares by confidence only, correction not smoothed
+    projection_smooth_s: float = 0.2  # zero-lag span (s) of the correction on noisy joints; 0 = none
+    projection_noisy_ratio: float = 2.0  # noisier than this x the median joint: takes more of the correction
 
 
 @dataclass
@@ -418,6 +427,81 @@ def project_bone_lengths_pbd(
 
 
 
+def joint_noise_scale(observed_positions: np.ndarray, estimate: np.ndarray, inlier: np.ndarray) -> np.ndarray:
+    """``(J,)`` robust scale (m) of each joint's inlier coordinates about ``estimate`` ``(T, J, 3)``.
+
+    1.4826 x the median absolute residual over the window's frames and axes; 0 for a
+    joint with no inlier. Exact samples (mocap, the paper protocol's uncorrupted
+    entries) give 0; on Kinect v2 a thumb or hand several times a shoulder's.
+    """
+    resid = np.abs(np.where(inlier, np.asarray(observed_positions, dtype=np.float64) - estimate, np.nan))
+    per_joint = resid.transpose(1, 0, 2).reshape(resid.shape[1], -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        scale = 1.4826 * np.nanmedian(per_joint, axis=1)
+    return np.nan_to_num(scale, nan=0.0)
+
+
+def noise_share(noise_m: np.ndarray, noise_floor_m: float | None) -> np.ndarray:
+    """``(J,)`` in [0, 1): ``s^2 / (s^2 + floor^2)``, how much of a joint's sample is noise (0 = exact)."""
+    s2 = np.asarray(noise_m, dtype=np.float64) ** 2
+    if noise_floor_m is None:
+        return np.zeros_like(s2)
+    return s2 / (s2 + float(noise_floor_m) ** 2)
+
+
+def projection_inverse_mass(
+    confidence: np.ndarray,
+    observed: np.ndarray,
+    noise_m: np.ndarray,
+    noise_floor_m: float | None,
+    noisy_ratio: float = 2.0,
+) -> np.ndarray:
+    """``(T, J)`` inverse masses for :func:`project_bone_lengths_pbd`: who takes a bone's length error.
+
+    Confidence: tracked 1, inferred (0.5) 2x, missing 4x. Noise: a joint clearly noisier
+    than the body's typical joint (scale ``s_j`` above ``noisy_ratio`` x the median
+    joint's plus ``noise_floor_m``; :func:`joint_noise_scale`) moves
+    ``(s_j / that level)^2`` times more: the weighted least-squares split of a length
+    error between two measurements of unequal variance. Why: on Kinect v2 a bone's
+    length error comes from its noisier end (thumb, hand tip, hand); split evenly, the
+    correction carried the hand's jitter into the wrist, shoulders and spine (on
+    Ges04_comehere.csv the projection tripled the shoulders' jitter). Joints of similar
+    noise keep equal shares: weighting them by estimated scales only moved corrections
+    at random (measured on the sensor protocol, whose noise is the same on every joint).
+    """
+    conf_mass = 1.0 / np.maximum(np.where(observed, confidence, 0.0), 0.25)
+    s = np.asarray(noise_m, dtype=np.float64)
+    if noise_floor_m is None or not s.size:
+        return conf_mass
+    level = noisy_ratio * float(np.median(s)) + noise_floor_m
+    return conf_mass * np.maximum(1.0, (s / level) ** 2)[None, :]
+
+
+def smooth_projection(
+    estimate: np.ndarray, projected: np.ndarray, share: np.ndarray, rate_hz: float, span_s: float
+) -> np.ndarray:
+    """``projected`` with the correction ``projected - estimate`` smoothed over time on noisy joints.
+
+    The correction is replaced by its zero-lag local quadratic over ``span_s`` seconds
+    in proportion to each joint's noise ``share`` ``(J,)`` (:func:`noise_share`). Why: on
+    a noisy short bone (a Kinect hand, thumb or foot) the bone's direction jitters, and a
+    steady length correction applied along it every frame turns that into position
+    jitter (Ges04_comehere.csv: the projected output jittered more than median +
+    Savitzky-Golay, the unprojected one less). Smoothed, a persistent length error is
+    still removed and frame-to-frame length noise is left as it was. Exact joints
+    (share 0: mocap) keep the exact projection.
+    """
+    h = int(round(span_s * rate_hz / 2))
+    if h < 2 or not np.any(share > 0):
+        return projected
+    n_frames = estimate.shape[0]
+    corr = (projected - estimate).reshape(n_frames, -1)
+    smooth, _ = _fit_local_poly(corr, np.ones_like(corr), h)
+    a = np.repeat(np.asarray(share, dtype=np.float64), 3)[None, :]
+    return estimate + (corr + a * (smooth - corr)).reshape(estimate.shape)
+
+
 def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass):
     """:func:`project_bone_lengths_pbd`, compiled when :data:`streamfix.core.kernels.COMPILED` (same math)."""
     project = kernels.project_bone_lengths_pbd if kernels.COMPILED else project_bone_lengths_pbd
@@ -544,8 +628,12 @@ def clean_window(
         else:
             bl = np.asarray(bone_lengths, dtype=np.float64)
         if cfg.projection == "pbd":
-            inv_mass = 1.0 / np.maximum(np.where(obs, conf, 0.0), 0.25)  # inferred (0.5) moves 2x, missing 4x
-            cleaned = _project_pbd(cleaned, bones, bl, cfg.projection_iterations, inv_mass)
+            noise = joint_noise_scale(x, cleaned, obs3 & ~outlier)
+            inv_mass = projection_inverse_mass(conf, obs, noise, cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
+            projected = _project_pbd(cleaned, bones, bl, cfg.projection_iterations, inv_mass)
+            share = noise_share(noise, cfg.projection_noise_floor_m)
+            cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s)
+            info["joint_noise_m"] = noise
         else:
             cleaned = project_bone_lengths(cleaned, bones, bl, cfg.projection_steps, cfg.projection_gamma)
         info["bone_lengths"] = bl
