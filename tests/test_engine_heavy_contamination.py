@@ -8,24 +8,16 @@ clean output worse than median + Savitzky-Golay (bench_accuracy: 0.104 m against
 on 131_02 at 30 Hz; 0.105 m against the 0.040 bar at 120 Hz). Measured fix: trust the raw
 mode only where it is a peak (enough of the bone's raw samples within millimetres of
 it; real sensors 14-90 %, 80 % contamination 2-5 %), else the engine's clean-output
-lengths. The check lives in ``streamfix/streaming/engine.py`` (``BONE_PEAK_SHARE``);
-until it is there these tests are expected to fail.
+lengths (``BONE_PEAK_SHARE`` in ``streamfix/streaming/engine.py``).
 """
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from streamfix.core import metrics
 from streamfix.core.corruption import add_noise
 from streamfix.evaluation.registry import run_method
 from streamfix.io.bvh import read_bvh
-from streamfix.streaming import engine
-
-pytestmark = pytest.mark.xfail(
-    not hasattr(engine, "BONE_PEAK_SHARE"), strict=True,
-    reason="the engine trusts raw-input bone-length modes that heavy contamination makes up",
-)
 
 
 def _take(shared_data, step: int, frames: slice):

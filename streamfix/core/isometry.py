@@ -87,7 +87,7 @@ def _shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
 
 
 def length_mode_with_support(
-    samples: np.ndarray, fraction: float = 0.1, tolerance_m: float = 0.005, refine_m: float | None = 0.03
+    samples: np.ndarray, fraction: float = 0.1, tolerance_m: float = 0.005, refine_m: float | None = 0.02
 ) -> tuple[np.ndarray, np.ndarray]:
     """Robust bone lengths of ``samples`` ``(T, B)`` metres (NaN = no sample) and their support.
 
@@ -97,9 +97,11 @@ def length_mode_with_support(
     are, but it rests on the densest ``fraction`` of them only, so under sensor noise on
     every sample (temporally correlated: few independent samples in a short history) it
     wanders by several millimetres; the median of the whole clean cluster does not, and
-    corrupted samples outside the cluster still do not count. Measured by
-    ``benchmarks/bench_sensor.py`` and ``bench_paired.py`` (the refined lengths lowered
-    the error of every sensor error kind and on UI-PRMD and KERAAL against Vicon).
+    corrupted samples outside the cluster still do not count. The radius: about twice the
+    spread of a clean bone's samples (Kinect's own length variation and sensor noise
+    along the bone, 1-1.5 cm); measured by ``benchmarks/bench_sensor.py``,
+    ``bench_paired.py`` and the Kinect files of ``bench_accuracy.py`` (3 cm was a little
+    better on the simulated noise, 1 cm on the real Kinect recordings' jitter).
 
     Returns ``(lengths (B,), support (B,) int)``: ``support`` counts the samples within
     ``tolerance_m`` of each estimate. A mode found from a handful of frames can sit on
@@ -134,8 +136,9 @@ def symmetric_lengths(
     at least ``own_support`` and twice as many, takes the support-weighted mean of the pair. A sensor's limb that is mostly *inferred* has few
     trustworthy samples, and the well-seen side fixes it (a seated Kinect user's inferred
     shin otherwise kept a length from 8 frames, 0.53 m against the tracked side's
-    0.385 m). ``pool`` ``(B,)`` bool: bones pooled with their counterpart whatever the
-    support (both sides of the pair get the support-weighted mean): bones of limbs the
+    0.385 m). ``pool`` ``(B,)`` bool or weight in [0, 1]: bones pooled with their
+    counterpart whatever the support (both sides of the pair move that far toward the
+    support-weighted mean of the two): bones of limbs the
     sensor has been guessing (*inferred*), whose own samples, however many, are the
     sensor's guesses; a person's left and right bones are the same length to within a few
     per cent, which the guessed side otherwise misses by 10-30 % (a seated Kinect user's
@@ -149,10 +152,16 @@ def symmetric_lengths(
     # borrow only from a counterpart that is itself well seen and clearly better seen:
     # early in a stream both sides are thin, and pooling them then only adds asymmetry error
     borrow = (m != np.arange(len(l))) & (s < own_support) & (s[m] >= own_support) & (s[m] >= 2 * s)
+    out_l, out_s = np.where(borrow, pooled, l), np.where(borrow, total, s)
     if pool is not None:
-        p = np.asarray(pool, dtype=bool)
-        borrow |= (p | p[m]) & (m != np.arange(len(l))) & (total > 0)
-    return np.where(borrow, pooled, l), np.where(borrow, total, s)
+        # a weight in [0, 1] per bone (True = 1): the pair moves that far toward its pooled
+        # length, so a limb whose share of guessed samples grows does not switch lengths
+        # (and jump) from one window to the next
+        w = np.asarray(pool, dtype=np.float64)
+        w = np.where((m != np.arange(len(l))) & (total > 0) & ~borrow, np.maximum(w, w[m]), 0.0)
+        out_l = np.where(w > 0, (1.0 - w) * out_l + w * np.nan_to_num(pooled), out_l)
+        out_s = np.where(w >= 1.0, total, out_s)
+    return out_l, out_s
 
 
 def estimate_bone_lengths(

@@ -419,8 +419,10 @@ BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-
 BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
 BONE_SUPPORT_FRAMES = 4  # raw samples that must agree with a bone's mode before it is trusted
 BONE_SUPPORT_TOL_M = 0.005  # ... to within this (m)
-GUESSED_SHARE_POOLED = 0.1  # share of a bone's samples with an inferred end beyond which it pools with its mirror
+GUESSED_SHARE_POOLED = (0.02, 0.1)  # share of a bone's samples with an inferred end: from the first, pooling with
+# its mirror begins; from the second, the pair shares one length (symmetric_lengths)
 BONE_OWN_SUPPORT_S = 1.0  # tracked samples a bone needs to keep its own length (else inferred ones, the mirror's)
+BONE_PEAK_SHARE = 0.1  # share of a bone's raw samples that must lie within BONE_SUPPORT_TOL_M of its mode
 HISTORY_S = 10.0
 """Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
 solvers with ``wants_history`` (PCA gap filling trains on it)."""
@@ -930,13 +932,20 @@ class StreamEngine:
             est_all, support_all = length_mode_with_support(body.raw_bones_seen, tolerance_m=BONE_SUPPORT_TOL_M)
             use = thin & (support_all > support)
             est, support = np.where(use, est_all, est), np.where(use, support_all, support)
+        # a mode is a length only if it is a peak: clean samples of a rigid bone pile up
+        # within millimetres, corrupted ones spread over decimetres (80 % of coordinates
+        # corrupted: 2-5 % of samples near the mode, real sensors 14-90 %)
+        seen = np.isfinite(body.raw_bones_seen).sum(axis=0)
+        with np.errstate(invalid="ignore"):
+            near = (np.abs(body.raw_bones_seen - est[None, :]) <= BONE_SUPPORT_TOL_M).sum(axis=0)
+        peaked = ~np.isfinite(est) | (near >= BONE_PEAK_SHARE * seen)  # unseen: the mirror's (below)
         # a limb the sensor has been guessing shares its lengths with its mirror (see
         # symmetric_lengths): its own samples, however many, are the sensor's guesses
-        seen = np.isfinite(body.raw_bones_seen).sum(axis=0)
         guessed = seen - np.isfinite(body.raw_bones).sum(axis=0)
-        pool = guessed >= GUESSED_SHARE_POOLED * np.maximum(seen, 1)
-        est, support = symmetric_lengths(est, support, self._mirror_bones, own_support=own, pool=pool & (guessed > 0))
-        if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all():
+        lo, hi = GUESSED_SHARE_POOLED
+        pool = np.clip((guessed / np.maximum(seen, 1) - lo) / (hi - lo), 0.0, 1.0) * (guessed > 0)
+        est, support = symmetric_lengths(est, support, self._mirror_bones, own_support=own, pool=pool)
+        if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all() and peaked.all():
             return est
         return None
 
