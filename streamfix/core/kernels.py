@@ -23,7 +23,10 @@ into a single compiled loop over frames and channels:
 * :func:`shorth_mode`: the robust bone-length mode of
   :func:`streamfix.core.isometry._shorth_mode`, bit for bit;
 * :func:`theil_sen_line`: the live path's robust line through the last raw samples
-  (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit.
+  (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
+* :func:`live_step`: one whole frame of the live path's default chain (that gate, the One
+  Euro filter, the bone projection) in one call, bit for bit: the per-frame path is
+  dozens of tiny numpy calls per body, and their overhead was most of its cost.
 
 The numpy functions stay the reference: tests compare each kernel with them on real
 recordings (``tests/test_core_kernels.py``). Callers check :data:`COMPILED` at each
@@ -44,7 +47,7 @@ import numpy as np
 __all__ = [
     "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
-    "shorth_mode", "warm_up",
+    "shorth_mode", "live_step", "warm_up",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -556,6 +559,134 @@ def theil_sen_line(hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarr
     sigma = np.empty((n_joints, 3))
     _theil_sen_compiled(np.ascontiguousarray(hist, dtype=np.float64), u, pi, pj, r, sigma)
     return r, sigma
+
+
+# --------------------------------------------------------------------------- live step (gate, One Euro, projection)
+def _live_step_loop(
+    x, valid, t, hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
+    min_cutoff, beta, d_cutoff, gate_min_m, gate_k, tree_p, tree_c, child_len, project, y_out, outlier,
+):  # pragma: no cover - compiled
+    n_rows, n_joints, _ = hist.shape
+    # the raw history moves up one row; the newest row is this frame (NaN where invalid)
+    for i in range(n_rows - 1):
+        for j in range(n_joints):
+            for c in range(3):
+                hist[i, j, c] = hist[i + 1, j, c]
+    for j in range(n_joints):
+        for c in range(3):
+            hist[n_rows - 1, j, c] = x[j, c] if valid[j] else np.nan
+    r = np.empty((n_joints, 3))
+    sigma = np.empty((n_joints, 3))
+    _theil_sen_compiled(hist, u, pi, pj, r, sigma)
+    g = np.empty((n_joints, 3))
+    n_gated = 0
+    for j in range(n_joints):
+        any_out = False
+        for c in range(3):
+            have_ref = np.isfinite(r[j, c])
+            innov = abs(x[j, c] - r[j, c])
+            if np.isfinite(sigma[j, c]):  # residual scale, EMA over ~10 frames
+                if np.isfinite(scale[j, c]):
+                    scale[j, c] = 0.9 * scale[j, c] + 0.1 * sigma[j, c]
+                else:
+                    scale[j, c] = sigma[j, c]
+            s = scale[j, c] if np.isfinite(scale[j, c]) else gate_min_m
+            tau = max(gate_min_m, gate_k * s)
+            out = valid[j] and have_ref and innov > tau
+            outlier[j, c] = out
+            any_out = any_out or out
+            if valid[j] and not out:
+                g[j, c] = x[j, c]
+            elif have_ref:
+                g[j, c] = r[j, c]
+            else:
+                g[j, c] = last[j, c]
+        if any_out:
+            n_gated += 1
+    # One Euro (Casiez et al. 2012), per joint with a finite gated sample
+    for j in range(n_joints):
+        ok = np.isfinite(g[j, 0]) and np.isfinite(g[j, 1]) and np.isfinite(g[j, 2])
+        if not ok:
+            continue
+        if not fseen[j]:
+            for c in range(3):
+                fx[j, c] = g[j, c]
+                fdx[j, c] = 0.0
+            ft[j] = t
+            fseen[j] = True
+            continue
+        dt = max(t - ft[j], 1e-6)
+        a_d = 1.0 / (1.0 + (1.0 / (2.0 * np.pi * d_cutoff)) / dt)
+        for c in range(3):
+            x_prev = fx[j, c]
+            dx = (g[j, c] - x_prev) / dt
+            dx_hat = a_d * dx + (1.0 - a_d) * fdx[j, c]
+            cutoff = min_cutoff + beta * abs(dx_hat)
+            a = 1.0 / (1.0 + (1.0 / (2.0 * np.pi * cutoff)) / dt)
+            fx[j, c] = a * g[j, c] + (1.0 - a) * x_prev
+            fdx[j, c] = dx_hat
+        ft[j] = t
+    for j in range(n_joints):
+        for c in range(3):
+            y_out[j, c] = fx[j, c] if np.isfinite(fx[j, c]) else last[j, c]
+    if project:
+        # each child at its bone length from its unprojected parent, along the bone
+        y = y_out.copy()
+        for b in range(tree_p.shape[0]):
+            p = tree_p[b]
+            q = tree_c[b]
+            v0 = y[q, 0] - y[p, 0]
+            v1 = y[q, 1] - y[p, 1]
+            v2 = y[q, 2] - y[p, 2]
+            norm = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)  # the order of np.linalg.norm's sum
+            target = child_len[q]
+            k = 1.0
+            if np.isfinite(target) and norm > 1e-9 and np.isfinite(norm):
+                k = target / norm
+            n0 = y[p, 0] + v0 * k
+            n1 = y[p, 1] + v1 * k
+            n2 = y[p, 2] + v2 * k
+            if np.isfinite(n0) and np.isfinite(n1) and np.isfinite(n2):
+                y_out[q, 0] = n0
+                y_out[q, 1] = n1
+                y_out[q, 2] = n2
+    return n_gated
+
+
+_live_step_compiled = _jit(_live_step_loop)
+
+
+def live_step(
+    x: np.ndarray, valid: np.ndarray, t: float, hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarray,
+    scale: np.ndarray, last: np.ndarray, filter_state: tuple, params: tuple, tree_parent: np.ndarray,
+    tree_child: np.ndarray, child_len: np.ndarray, project: bool,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One frame of the live path's default chain, compiled: the Theil-Sen gate, the One
+    Euro filter and the non-propagating bone projection of
+    :meth:`streamfix.streaming.live.LivePath.step` in one call, bit for bit.
+
+    ``x`` ``(J, 3)`` m, ``valid`` ``(J,)``, ``t`` s. The state arrays are updated in place:
+    ``hist`` ``(K, J, 3)`` raw samples, ``scale`` ``(J, 3)`` m,
+    ``filter_state`` = the One Euro filter's ``(x, dx, t, seen)``; ``last`` ``(J, 3)`` m, the
+    previous output (read only). ``params`` =
+    ``(min_cutoff Hz, beta, d_cutoff Hz, gate_min_m m, gate_k)``; ``tree_parent``,
+    ``tree_child`` ``(k,)`` the tree's bones; ``child_len`` ``(J,)`` m. Returns ``(positions (J, 3),
+    outlier (J, 3) bool, joints gated)``. Needs numba (:data:`HAVE_NUMBA`).
+    """
+    if _live_step_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.live_step needs numba; use LivePath.step's numpy path")
+    n_joints = hist.shape[1]
+    y = np.empty((n_joints, 3))
+    outlier = np.empty((n_joints, 3), dtype=np.bool_)
+    fx, fdx, ft, fseen = filter_state
+    min_cutoff, beta, d_cutoff, gate_min_m, gate_k = params
+    n = _live_step_compiled(
+        np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(valid, dtype=np.bool_), float(t),
+        hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
+        float(min_cutoff), float(beta), float(d_cutoff), float(gate_min_m), float(gate_k),
+        tree_parent, tree_child, child_len, bool(project), y, outlier,
+    )
+    return y, outlier, int(n)
 
 
 # --------------------------------------------------------------------------- bone spread
