@@ -108,6 +108,7 @@ blocked or dropped; every input frame still appears once on ``clean``.
 """
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import threading
 import time
@@ -396,7 +397,7 @@ class Histogram:
         self.recent: deque[float] = deque(maxlen=recent)
 
     def observe(self, seconds: float) -> None:
-        self.counts[int(np.searchsorted(self.BOUNDS, seconds))] += 1
+        self.counts[bisect.bisect_left(self.BOUNDS, seconds)] += 1  # np.searchsorted's bucket
         self.total += seconds
         self.n += 1
         self.recent.append(seconds)
@@ -509,6 +510,7 @@ class _Body:
         # bone lengths sampled from the body's clean output (median -> clean_lengths)
         self.clean_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
         self.clean_bones_n = 0
+        self.clean_pending: list[np.ndarray] = []  # clean frames not yet in clean_bones (< one hop)
         self.clean_lengths: np.ndarray | None = None
         # per-frame bone lengths of the raw input where both ends are tracked (ring, NaN = none)
         self.raw_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
@@ -1194,12 +1196,15 @@ class StreamEngine:
             if body.present[k]:
                 den = body.den[k]
                 have = den > 0
-                if not have.all():  # no solved window gave these joints a value: the live one
+                if have.all():  # every joint has a window value (the usual case): no masking
+                    pos = body.mean[k].copy()
+                    rec = ~body.valid[k] | (body.recw[k] / den > 0.5)
+                else:  # no solved window gave these joints a value: the live one
                     self.counters["joints_live_fallback"] += int((~have).sum())
-                pos = np.where(have[:, None], body.mean[k], body.live[k])
-                recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
-                rec = ~body.valid[k] | ~have | (recw > 0.5)
-                rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])
+                    pos = np.where(have[:, None], body.mean[k], body.live[k])
+                    recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
+                    rec = ~body.valid[k] | ~have | (recw > 0.5)
+                    rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])
                 g = body.g0 + n
                 pend = st.pending.get(g)
                 if pend is not None:
@@ -1217,17 +1222,30 @@ class StreamEngine:
             body.final_upto += 1
 
     def _sample_clean_bones(self, body: _Body, pos: np.ndarray) -> None:
+        """Bone lengths of one clean frame into the body's memory; every hop, their median
+        becomes the body's clean lengths. Frames are kept and measured once per hop, in one
+        array call (the same values as frame by frame)."""
         if not len(self.bones) or self._fixed_lengths is not None:
             return
-        lengths = np.linalg.norm(pos[self.bones[:, 1]] - pos[self.bones[:, 0]], axis=1)
-        body.clean_bones[body.clean_bones_n % len(body.clean_bones)] = lengths
+        body.clean_pending.append(pos.copy())  # the emitted frame may be changed by its receiver
         body.clean_bones_n += 1
         if body.clean_bones_n % self.cfg.hop == 0:
+            self._measure_clean_bones(body)
             rows = body.clean_bones[: min(body.clean_bones_n, len(body.clean_bones))]
             est = np.median(rows, axis=0)  # clean output is finite
             body.clean_lengths = est if np.isfinite(est).all() else None
             if self.cfg.live_output:
                 body.live_path.set_bone_lengths(est)
+
+    def _measure_clean_bones(self, body: _Body) -> None:
+        """Bone lengths (m) of the clean frames kept since the last hop, into ``clean_bones``."""
+        if not body.clean_pending:
+            return
+        frames = np.stack(body.clean_pending)
+        body.clean_pending = []
+        lengths = np.linalg.norm(frames[:, self.bones[:, 1]] - frames[:, self.bones[:, 0]], axis=2)
+        n = body.clean_bones_n
+        body.clean_bones[np.arange(n - len(frames), n) % len(body.clean_bones)] = lengths
 
     def _emit(self, st: _Stream, out: list) -> None:
         while True:
