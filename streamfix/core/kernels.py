@@ -40,6 +40,7 @@ Arrays: positions in metres, time along axis 0 (frames).
 """
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -185,6 +186,18 @@ def _solve3_first_py(m00, m01, m02, m11, m12, m22, b0, b1, b2):  # pragma: no co
     return b0 / a[0, 0]
 
 
+@functools.lru_cache(maxsize=64)
+def _poly_taps(h: int) -> np.ndarray:
+    """``(5, 2h + 1)`` moments ``K(k) (k/h)^m`` of the tricube kernel of half-width ``h`` frames
+    (the coefficients of :func:`streamfix.core.pipeline._local_poly`); cached, read-only."""
+    k = np.arange(-h, h + 1, dtype=np.float64)
+    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
+    u = k / h
+    taps = np.stack([K * u**m for m in range(5)])
+    taps.setflags(write=False)
+    return taps
+
+
 _solve3_first = _jit(_solve3_first_py)
 _local_poly_compiled = _jit(_local_poly_loop)
 
@@ -199,10 +212,7 @@ def local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.nda
     """
     if _local_poly_compiled is None:
         raise RuntimeError("streamfix.core.kernels.local_poly needs numba; use streamfix.core.pipeline._local_poly")
-    k = np.arange(-h, h + 1, dtype=np.float64)
-    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
-    u = k / h
-    taps = np.stack([K * u**m for m in range(5)])  # the same coefficients as the reference
+    taps = _poly_taps(int(h))  # the same coefficients as the reference
     y = np.ascontiguousarray(y, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
     fit = np.empty_like(y)
@@ -468,26 +478,51 @@ def robust_temporal_fit(
         raise RuntimeError("streamfix.core.kernels.robust_temporal_fit needs numba; use streamfix.core.pipeline's")
     x = np.asarray(positions, dtype=np.float64)
     n_frames, n_joints, _ = x.shape
-    y = x.reshape(n_frames, 3 * n_joints)
-    prior = np.repeat(np.asarray(weights, dtype=np.float64), 3, axis=1)
-    prior = np.where(np.isfinite(y), prior, 0.0)
-    obs = prior > 0
-    y0 = np.where(obs, y, 0.0)
-    med = running_median(np.where(obs, y, np.nan), 2 * h + 1)
-    fit = np.where(np.isfinite(med), med, 0.0)
-    support = np.zeros_like(y0)
-    k = np.arange(-h, h + 1, dtype=np.float64)
-    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
-    u = k / h
-    taps = np.stack([K * u**m for m in range(5)])
-    w = np.empty_like(y0)
-    for c in scales_m:  # graduated non-convexity: wide basin first, then sharpen
-        _tukey_weights_compiled(y0, fit, obs, prior, float(c), w)
-        fit = np.empty_like(y0)
-        _local_poly_compiled(y0, w, taps, fit, support, _PIVOT_RTOL)
-    resid = np.where(obs, y0 - fit, np.nan)
+    y = np.ascontiguousarray(x.reshape(n_frames, 3 * n_joints))
+    fit = np.empty_like(y)
+    resid = np.empty_like(y)
+    support = np.zeros_like(y)
+    _robust_fit_compiled(
+        y, np.ascontiguousarray(weights, dtype=np.float64), int(h), np.asarray(scales_m, dtype=np.float64),
+        _poly_taps(int(h)), fit, resid, support,
+    )
     shape = (n_frames, n_joints, 3)
     return fit.reshape(shape), resid.reshape(shape), support.reshape(shape)
+
+
+def _robust_fit_loop(y, weights, h, scales, taps, fit, resid, support):  # pragma: no cover - compiled
+    """:func:`robust_temporal_fit` on ``y`` ``(T, 3J)``, ``weights`` ``(T, J)``: one compiled call."""
+    n_frames, n_ch = y.shape
+    prior = np.empty((n_frames, n_ch))
+    obs = np.empty((n_frames, n_ch), dtype=np.bool_)
+    y0 = np.empty((n_frames, n_ch))
+    ynan = np.empty((n_frames, n_ch))
+    for t in range(n_frames):
+        for k in range(n_ch):
+            v = y[t, k]
+            p = weights[t, k // 3] if np.isfinite(v) else 0.0
+            prior[t, k] = p
+            o = p > 0
+            obs[t, k] = o
+            y0[t, k] = v if o else 0.0
+            ynan[t, k] = v if o else np.nan
+    med = np.empty((n_frames, n_ch))
+    _running_median_compiled(ynan, 2 * h + 1, med)
+    cur = np.empty((n_frames, n_ch))
+    for t in range(n_frames):
+        for k in range(n_ch):
+            cur[t, k] = med[t, k] if np.isfinite(med[t, k]) else 0.0
+    w = np.empty((n_frames, n_ch))
+    for c in scales:  # graduated non-convexity: wide basin first, then sharpen
+        _tukey_weights_compiled(y0, cur, obs, prior, c, w)
+        _local_poly_compiled(y0, w, taps, fit, support, _PIVOT_RTOL)
+        cur[:, :] = fit
+    for t in range(n_frames):
+        for k in range(n_ch):
+            resid[t, k] = y0[t, k] - fit[t, k] if obs[t, k] else np.nan
+
+
+_robust_fit_compiled = _jit(_robust_fit_loop)
 
 
 # --------------------------------------------------------------------------- Theil-Sen line (live gate)
@@ -713,7 +748,8 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma:
         devs[b] = np.nan
         if n == 0:
             continue
-        s = np.sort(buf[:n])
+        s = buf[:n]
+        s.sort()  # in place: no array allocated per bone
         typical = (s[(n - 1) // 2] + s[n // 2]) / 2.0
         if not typical > min_bone_m:
             continue
@@ -722,7 +758,8 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma:
             if lengths[t] == lengths[t]:
                 buf[n] = abs(lengths[t] - typical)
                 n += 1
-        s = np.sort(buf[:n])
+        s = buf[:n]
+        s.sort()
         devs[b] = (s[(n - 1) // 2] + s[n // 2]) / 2.0
 
 
@@ -759,7 +796,8 @@ def _shorth_mode_loop(values, fraction, out):  # pragma: no cover - compiled
         if n == 0:
             out[b] = np.nan
             continue
-        s = np.sort(buf[:n])
+        s = buf[:n]
+        s.sort()  # in place: no array allocated per column
         h = max(int(np.ceil(fraction * n)), 1)
         best = 0
         best_width = np.inf
