@@ -848,4 +848,9 @@ def warm_up() -> None:
     gauss_newton_update(finite, finite, np.zeros_like(finite), 1.0, 10.0, bones, lengths, np.ones((2, 2)))
     bone_spread_deviations(finite, np.ones((12, 3), dtype=bool), bones, 0.01)
     shorth_mode(x[:, :, 0], 0.5)
-    theil_sen_line(x[:7], np.arange(7.0), *[np.ascontiguousarray(a) for a in np.triu_indices(7, 1)])
+    pi, pj = (np.ascontiguousarray(a) for a in np.triu_indices(7, 1))
+    theil_sen_line(x[:7], np.arange(7.0), pi, pj)
+    state = (np.full((3, 3), np.nan), np.zeros((3, 3)), np.zeros(3), np.zeros(3, dtype=bool))
+    live_step(finite[0], np.ones(3, dtype=bool), 0.0, x[:7].copy(), np.arange(7.0), pi, pj, np.full((3, 3), np.nan),
+              np.full((3, 3), np.nan), state, (1.0, 0.5, 1.0, 0.03, 4.0), bones[:, 0].copy(), bones[:, 1].copy(),
+              np.full(3, 0.5), True)
