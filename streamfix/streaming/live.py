@@ -30,7 +30,9 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
 Measured (``OMP_NUM_THREADS=1``): on CMU 131_01 at 30 Hz with 10 / 20 % of entries
 corrupted by U(+-25 cm), live jitter 8.0x / 6.2x lower than the input's and live AJE
 18 / 29 mm (input 36 / 69 mm); on the five real Kinect v2 recordings jitter roughly
-halved; about 0.27 ms per body-frame.
+halved. With numba the default chain (this gate, One Euro, the projection without
+propagation) runs as one compiled call per body-frame (:func:`streamfix.core.kernels.live_step`,
+the same values); its cost is in ``benchmarks/results/streaming.json``.
 
 A joint missing in the input is predicted (``r_t``; held when no velocity is known)
 and flagged recovered. Units: metres, seconds.
