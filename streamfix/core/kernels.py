@@ -157,33 +157,45 @@ def _local_poly_loop(y, w, taps, fit, support, pivot_rtol):  # pragma: no cover 
 
 
 def _solve3_first_py(m00, m01, m02, m11, m12, m22, b0, b1, b2):  # pragma: no cover - compiled
-    """First unknown of the symmetric 3x3 system by LU with partial pivoting (as LAPACK gesv)."""
-    a = np.empty((3, 4))
-    a[0, 0], a[0, 1], a[0, 2], a[0, 3] = m00, m01, m02, b0
-    a[1, 0], a[1, 1], a[1, 2], a[1, 3] = m01, m11, m12, b1
-    a[2, 0], a[2, 1], a[2, 2], a[2, 3] = m02, m12, m22, b2
-    for col in range(3):
-        p = col
-        for r in range(col + 1, 3):
-            if abs(a[r, col]) > abs(a[p, col]):
-                p = r
-        if p != col:
-            for q in range(4):
-                tmp = a[col, q]
-                a[col, q] = a[p, q]
-                a[p, q] = tmp
-        inv = 1.0 / a[col, col]  # LAPACK's getf2 scales the column by the reciprocal pivot
-        for r in range(col + 1, 3):
-            f = a[r, col] * inv
-            for q in range(col + 1, 4):
-                a[r, q] -= f * a[col, q]
+    """First unknown of the symmetric 3x3 system by LU with partial pivoting (as LAPACK gesv).
+
+    Rows held in scalars (no array allocated per call: the robust fit's sparse windows
+    take this path for many frames); the same operations in the same order as the
+    textbook loop (first row of largest magnitude as pivot, elimination by the
+    reciprocal pivot, back substitution column by column), so the same bits."""
+    a00, a01, a02, c0 = m00, m01, m02, b0
+    a10, a11, a12, c1 = m01, m11, m12, b1
+    a20, a21, a22, c2 = m02, m12, m22, b2
+    # column 0: the pivot row moves up (rows swap whole)
+    if abs(a10) > abs(a00):
+        if abs(a20) > abs(a10):
+            a00, a01, a02, c0, a20, a21, a22, c2 = a20, a21, a22, c2, a00, a01, a02, c0
+        else:
+            a00, a01, a02, c0, a10, a11, a12, c1 = a10, a11, a12, c1, a00, a01, a02, c0
+    elif abs(a20) > abs(a00):
+        a00, a01, a02, c0, a20, a21, a22, c2 = a20, a21, a22, c2, a00, a01, a02, c0
+    inv = 1.0 / a00  # LAPACK's getf2 scales the column by the reciprocal pivot
+    f = a10 * inv
+    a11 -= f * a01
+    a12 -= f * a02
+    c1 -= f * c0
+    f = a20 * inv
+    a21 -= f * a01
+    a22 -= f * a02
+    c2 -= f * c0
+    # column 1
+    if abs(a21) > abs(a11):
+        a11, a12, c1, a21, a22, c2 = a21, a22, c2, a11, a12, c1
+    f = a21 * (1.0 / a11)
+    a22 -= f * a12
+    c2 -= f * c1
     # back substitution column by column, as LAPACK's trsm
-    x2 = a[2, 3] / a[2, 2]
-    b1 = a[1, 3] - x2 * a[1, 2]
-    b0 = a[0, 3] - x2 * a[0, 2]
-    x1 = b1 / a[1, 1]
-    b0 -= x1 * a[0, 1]
-    return b0 / a[0, 0]
+    x2 = c2 / a22
+    c1 = c1 - x2 * a12
+    c0 = c0 - x2 * a02
+    x1 = c1 / a11
+    c0 -= x1 * a01
+    return c0 / a00
 
 
 @functools.lru_cache(maxsize=64)
