@@ -67,14 +67,17 @@ False: the numpy references. Read at each call, so it may be switched at runtime
 _PIVOT_RTOL = 1e-4  # the same threshold as streamfix.core.pipeline._local_poly
 
 
-def _jit(fn):
-    """Compile ``fn`` with numba (no Python objects, GIL released, cached on disk), or None."""
+def _jit(fn, error_model: str = "python"):
+    """Compile ``fn`` with numba (no Python objects, GIL released, cached on disk), or None.
+
+    ``error_model='numpy'``: a float division by zero gives inf/NaN as in numpy instead of
+    raising, which lets the compiler vectorise divisions (the same IEEE results otherwise)."""
     if _numba is None:
         return None
     try:
-        return _numba.njit(cache=True, nogil=True, fastmath=False)(fn)
+        return _numba.njit(cache=True, nogil=True, fastmath=False, error_model=error_model)(fn)
     except RuntimeError:  # no writable cache location at all: compile in each process
-        return _numba.njit(nogil=True, fastmath=False)(fn)
+        return _numba.njit(nogil=True, fastmath=False, error_model=error_model)(fn)
 
 
 # --------------------------------------------------------------------------- local quadratic
@@ -90,6 +93,9 @@ def _local_poly_loop(y, w, taps, fit, support, pivot_rtol):  # pragma: no cover 
     r0 = np.empty(n_ch)
     r1 = np.empty(n_ch)
     r2 = np.empty(n_ch)
+    row = np.empty(n_ch)
+    gap1 = np.empty(n_ch)
+    gap2 = np.empty(n_ch)
     # zero-padded weights and weighted values: no bounds tests in the inner loop
     wp = np.zeros((n_frames + 2 * h, n_ch))
     yp = np.zeros((n_frames + 2 * h, n_ch))
@@ -133,26 +139,36 @@ def _local_poly_loop(y, w, taps, fit, support, pivot_rtol):  # pragma: no cover 
                 r0[c] += a0 * ys
                 r1[c] += a1 * yd
                 r2[c] += a2 * ys
+        # the LDL^T solve, branch-free so the divisions vectorise; channels whose
+        # elimination cancelled a pivot are solved again by LU with pivoting below
         for c in range(n_ch):
             m00 = s0[c] + 1e-12
             m11 = s2[c] + 1e-9
             m22 = s4[c] + 1e-9
-            m01 = s1[c]
-            m02 = s2[c]
-            m12 = s3[c]
-            d0 = m00
-            l10 = m01 / d0
-            l20 = m02 / d0
-            d1 = m11 - l10 * m01
-            l21 = (m12 - l20 * m01) / d1
-            d2 = m22 - l20 * m02 - l21 * l21 * d1
-            if d1 < pivot_rtol * m11 or d2 < pivot_rtol * m22:
-                fit[t, c] = _solve3_first(m00, m01, m02, m11, m12, m22, r0[c], r1[c], r2[c])
-            else:
-                z1 = r1[c] - l10 * r0[c]
-                a2s = (r2[c] - l20 * r0[c] - l21 * z1) / d2
-                a1s = z1 / d1 - l21 * a2s
-                fit[t, c] = r0[c] / d0 - l10 * a1s - l20 * a2s
+            l10 = s1[c] / m00
+            l20 = s2[c] / m00
+            d1 = m11 - l10 * s1[c]
+            l21 = (s3[c] - l20 * s1[c]) / d1
+            d2 = m22 - l20 * s2[c] - l21 * l21 * d1
+            z1 = r1[c] - l10 * r0[c]
+            a2s = (r2[c] - l20 * r0[c] - l21 * z1) / d2
+            a1s = z1 / d1 - l21 * a2s
+            row[c] = r0[c] / m00 - l10 * a1s - l20 * a2s
+            gap1[c] = d1 - pivot_rtol * m11
+            gap2[c] = d2 - pivot_rtol * m22
+        for c in range(n_ch):
+            if not (gap1[c] >= 0.0 and gap2[c] >= 0.0):  # a pivot below its share (or NaN)
+                m00 = s0[c] + 1e-12
+                m11 = s2[c] + 1e-9
+                m22 = s4[c] + 1e-9
+                l10 = s1[c] / m00
+                l20 = s2[c] / m00
+                d1 = m11 - l10 * s1[c]
+                l21 = (s3[c] - l20 * s1[c]) / d1
+                d2 = m22 - l20 * s2[c] - l21 * l21 * d1
+                if d1 < pivot_rtol * m11 or d2 < pivot_rtol * m22:
+                    row[c] = _solve3_first(m00, s1[c], s2[c], m11, s3[c], m22, r0[c], r1[c], r2[c])
+            fit[t, c] = row[c]
             support[t, c] = s0[c]
 
 
@@ -211,7 +227,7 @@ def _poly_taps(h: int) -> np.ndarray:
 
 
 _solve3_first = _jit(_solve3_first_py)
-_local_poly_compiled = _jit(_local_poly_loop)
+_local_poly_compiled = _jit(_local_poly_loop, error_model="numpy")  # vectorised divisions
 
 
 def local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
@@ -534,7 +550,7 @@ def _robust_fit_loop(y, weights, h, scales, taps, fit, resid, support):  # pragm
             resid[t, k] = y0[t, k] - fit[t, k] if obs[t, k] else np.nan
 
 
-_robust_fit_compiled = _jit(_robust_fit_loop)
+_robust_fit_compiled = _jit(_robust_fit_loop, error_model="numpy")  # its local quadratics vectorise too
 
 
 # --------------------------------------------------------------------------- Theil-Sen line (live gate)
