@@ -17,7 +17,7 @@ SG along time) -- the cheapest "refined" output one could ship. Timings are best
 with the best throughput.
 
 Usage: ``python benchmarks/bench_streaming.py [--bodies 12] [--seconds 20] [--repeats 3]
-[--window W] [--hop H] [--json OUT]``.
+[--window W] [--hop H] [--json OUT] [--profile N]``.
 Exit status 1 when a target is missed.
 """
 from __future__ import annotations
@@ -198,6 +198,9 @@ def main() -> int:
                     help="where to write the results (default benchmarks/results/streaming.json; '' = nowhere)")
     ap.add_argument("--realtime-seconds", type=float, default=10.0,
                     help="length of the real-time threaded run (informational)")
+    ap.add_argument("--profile", type=int, default=0, metavar="N",
+                    help="also print the N functions with the most own time in one synchronous run of the "
+                         "default engine (cProfile, after the timed runs)")
     args = ap.parse_args()
     n_frames = int(args.seconds * RATE)
     bodies = body_streams(args.bodies, n_frames)
@@ -261,6 +264,13 @@ def main() -> int:
         (f"issue 13: >= {TARGET_BODIES_SCALE:g} bodies at 30 Hz per core", d["bodies_per_core"] >= TARGET_BODIES_SCALE),
         ("issue 13: in-process live p99 < 1 ms (per body-frame, CPU time)", live["cpu_p99"] < TARGET_LIVE_P99_SCALE_S),
     ]
+    if args.profile:  # where the time goes; after the timed runs, so the profiler's overhead is not in the table
+        import cProfile
+        import pstats
+
+        profiler = cProfile.Profile()
+        profiler.runcall(run_sync, frames, default_window_solver(), cfg)
+        pstats.Stats(profiler).sort_stats("tottime").print_stats(args.profile)
     failed = False
     for text, ok in checks:
         print(f"  [{'ok' if ok else 'MISS'}] {text}")

@@ -204,6 +204,8 @@ def test_warm_up_compiles_every_kernel():
 
     kernels.warm_up()
     dispatchers = [f for f in vars(kernels).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
-    called = [f for f in dispatchers if f.py_func.__name__ not in ("_solve3_first_py", "_sorted_median")]
+    # helpers called only from inside other kernels are compiled with them
+    helpers = ("_solve3_first_py", "_sorted_median", "_tukey_weights_loop")
+    called = [f for f in dispatchers if f.py_func.__name__ not in helpers]
     assert len(called) >= 8
     assert all(f.signatures for f in called)  # compiled (or loaded), so no first-call stall

@@ -23,7 +23,10 @@ into a single compiled loop over frames and channels:
 * :func:`shorth_mode`: the robust bone-length mode of
   :func:`streamfix.core.isometry._shorth_mode`, bit for bit;
 * :func:`theil_sen_line`: the live path's robust line through the last raw samples
-  (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit.
+  (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
+* :func:`live_step`: one whole frame of the live path's default chain (that gate, the One
+  Euro filter, the bone projection) in one call, bit for bit: the per-frame path is
+  dozens of tiny numpy calls per body, and their overhead was most of its cost.
 
 The numpy functions stay the reference: tests compare each kernel with them on real
 recordings (``tests/test_core_kernels.py``). Callers check :data:`COMPILED` at each
@@ -37,6 +40,7 @@ Arrays: positions in metres, time along axis 0 (frames).
 """
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -44,7 +48,7 @@ import numpy as np
 __all__ = [
     "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
-    "shorth_mode", "warm_up",
+    "shorth_mode", "live_step", "warm_up",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -63,14 +67,17 @@ False: the numpy references. Read at each call, so it may be switched at runtime
 _PIVOT_RTOL = 1e-4  # the same threshold as streamfix.core.pipeline._local_poly
 
 
-def _jit(fn):
-    """Compile ``fn`` with numba (no Python objects, GIL released, cached on disk), or None."""
+def _jit(fn, error_model: str = "python"):
+    """Compile ``fn`` with numba (no Python objects, GIL released, cached on disk), or None.
+
+    ``error_model='numpy'``: a float division by zero gives inf/NaN as in numpy instead of
+    raising, which lets the compiler vectorise divisions (the same IEEE results otherwise)."""
     if _numba is None:
         return None
     try:
-        return _numba.njit(cache=True, nogil=True, fastmath=False)(fn)
+        return _numba.njit(cache=True, nogil=True, fastmath=False, error_model=error_model)(fn)
     except RuntimeError:  # no writable cache location at all: compile in each process
-        return _numba.njit(nogil=True, fastmath=False)(fn)
+        return _numba.njit(nogil=True, fastmath=False, error_model=error_model)(fn)
 
 
 # --------------------------------------------------------------------------- local quadratic
@@ -86,6 +93,9 @@ def _local_poly_loop(y, w, taps, fit, support, pivot_rtol):  # pragma: no cover 
     r0 = np.empty(n_ch)
     r1 = np.empty(n_ch)
     r2 = np.empty(n_ch)
+    row = np.empty(n_ch)
+    gap1 = np.empty(n_ch)
+    gap2 = np.empty(n_ch)
     # zero-padded weights and weighted values: no bounds tests in the inner loop
     wp = np.zeros((n_frames + 2 * h, n_ch))
     yp = np.zeros((n_frames + 2 * h, n_ch))
@@ -129,61 +139,95 @@ def _local_poly_loop(y, w, taps, fit, support, pivot_rtol):  # pragma: no cover 
                 r0[c] += a0 * ys
                 r1[c] += a1 * yd
                 r2[c] += a2 * ys
+        # the LDL^T solve, branch-free so the divisions vectorise; channels whose
+        # elimination cancelled a pivot are solved again by LU with pivoting below
         for c in range(n_ch):
             m00 = s0[c] + 1e-12
             m11 = s2[c] + 1e-9
             m22 = s4[c] + 1e-9
-            m01 = s1[c]
-            m02 = s2[c]
-            m12 = s3[c]
-            d0 = m00
-            l10 = m01 / d0
-            l20 = m02 / d0
-            d1 = m11 - l10 * m01
-            l21 = (m12 - l20 * m01) / d1
-            d2 = m22 - l20 * m02 - l21 * l21 * d1
-            if d1 < pivot_rtol * m11 or d2 < pivot_rtol * m22:
-                fit[t, c] = _solve3_first(m00, m01, m02, m11, m12, m22, r0[c], r1[c], r2[c])
-            else:
-                z1 = r1[c] - l10 * r0[c]
-                a2s = (r2[c] - l20 * r0[c] - l21 * z1) / d2
-                a1s = z1 / d1 - l21 * a2s
-                fit[t, c] = r0[c] / d0 - l10 * a1s - l20 * a2s
+            l10 = s1[c] / m00
+            l20 = s2[c] / m00
+            d1 = m11 - l10 * s1[c]
+            l21 = (s3[c] - l20 * s1[c]) / d1
+            d2 = m22 - l20 * s2[c] - l21 * l21 * d1
+            z1 = r1[c] - l10 * r0[c]
+            a2s = (r2[c] - l20 * r0[c] - l21 * z1) / d2
+            a1s = z1 / d1 - l21 * a2s
+            row[c] = r0[c] / m00 - l10 * a1s - l20 * a2s
+            gap1[c] = d1 - pivot_rtol * m11
+            gap2[c] = d2 - pivot_rtol * m22
+        for c in range(n_ch):
+            if not (gap1[c] >= 0.0 and gap2[c] >= 0.0):  # a pivot below its share (or NaN)
+                m00 = s0[c] + 1e-12
+                m11 = s2[c] + 1e-9
+                m22 = s4[c] + 1e-9
+                l10 = s1[c] / m00
+                l20 = s2[c] / m00
+                d1 = m11 - l10 * s1[c]
+                l21 = (s3[c] - l20 * s1[c]) / d1
+                d2 = m22 - l20 * s2[c] - l21 * l21 * d1
+                if d1 < pivot_rtol * m11 or d2 < pivot_rtol * m22:
+                    row[c] = _solve3_first(m00, s1[c], s2[c], m11, s3[c], m22, r0[c], r1[c], r2[c])
+            fit[t, c] = row[c]
             support[t, c] = s0[c]
 
 
 def _solve3_first_py(m00, m01, m02, m11, m12, m22, b0, b1, b2):  # pragma: no cover - compiled
-    """First unknown of the symmetric 3x3 system by LU with partial pivoting (as LAPACK gesv)."""
-    a = np.empty((3, 4))
-    a[0, 0], a[0, 1], a[0, 2], a[0, 3] = m00, m01, m02, b0
-    a[1, 0], a[1, 1], a[1, 2], a[1, 3] = m01, m11, m12, b1
-    a[2, 0], a[2, 1], a[2, 2], a[2, 3] = m02, m12, m22, b2
-    for col in range(3):
-        p = col
-        for r in range(col + 1, 3):
-            if abs(a[r, col]) > abs(a[p, col]):
-                p = r
-        if p != col:
-            for q in range(4):
-                tmp = a[col, q]
-                a[col, q] = a[p, q]
-                a[p, q] = tmp
-        inv = 1.0 / a[col, col]  # LAPACK's getf2 scales the column by the reciprocal pivot
-        for r in range(col + 1, 3):
-            f = a[r, col] * inv
-            for q in range(col + 1, 4):
-                a[r, q] -= f * a[col, q]
+    """First unknown of the symmetric 3x3 system by LU with partial pivoting (as LAPACK gesv).
+
+    Rows held in scalars (no array allocated per call: the robust fit's sparse windows
+    take this path for many frames); the same operations in the same order as the
+    textbook loop (first row of largest magnitude as pivot, elimination by the
+    reciprocal pivot, back substitution column by column), so the same bits."""
+    a00, a01, a02, c0 = m00, m01, m02, b0
+    a10, a11, a12, c1 = m01, m11, m12, b1
+    a20, a21, a22, c2 = m02, m12, m22, b2
+    # column 0: the pivot row moves up (rows swap whole)
+    if abs(a10) > abs(a00):
+        if abs(a20) > abs(a10):
+            a00, a01, a02, c0, a20, a21, a22, c2 = a20, a21, a22, c2, a00, a01, a02, c0
+        else:
+            a00, a01, a02, c0, a10, a11, a12, c1 = a10, a11, a12, c1, a00, a01, a02, c0
+    elif abs(a20) > abs(a00):
+        a00, a01, a02, c0, a20, a21, a22, c2 = a20, a21, a22, c2, a00, a01, a02, c0
+    inv = 1.0 / a00  # LAPACK's getf2 scales the column by the reciprocal pivot
+    f = a10 * inv
+    a11 -= f * a01
+    a12 -= f * a02
+    c1 -= f * c0
+    f = a20 * inv
+    a21 -= f * a01
+    a22 -= f * a02
+    c2 -= f * c0
+    # column 1
+    if abs(a21) > abs(a11):
+        a11, a12, c1, a21, a22, c2 = a21, a22, c2, a11, a12, c1
+    f = a21 * (1.0 / a11)
+    a22 -= f * a12
+    c2 -= f * c1
     # back substitution column by column, as LAPACK's trsm
-    x2 = a[2, 3] / a[2, 2]
-    b1 = a[1, 3] - x2 * a[1, 2]
-    b0 = a[0, 3] - x2 * a[0, 2]
-    x1 = b1 / a[1, 1]
-    b0 -= x1 * a[0, 1]
-    return b0 / a[0, 0]
+    x2 = c2 / a22
+    c1 = c1 - x2 * a12
+    c0 = c0 - x2 * a02
+    x1 = c1 / a11
+    c0 -= x1 * a01
+    return c0 / a00
+
+
+@functools.lru_cache(maxsize=64)
+def _poly_taps(h: int) -> np.ndarray:
+    """``(5, 2h + 1)`` moments ``K(k) (k/h)^m`` of the tricube kernel of half-width ``h`` frames
+    (the coefficients of :func:`streamfix.core.pipeline._local_poly`); cached, read-only."""
+    k = np.arange(-h, h + 1, dtype=np.float64)
+    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
+    u = k / h
+    taps = np.stack([K * u**m for m in range(5)])
+    taps.setflags(write=False)
+    return taps
 
 
 _solve3_first = _jit(_solve3_first_py)
-_local_poly_compiled = _jit(_local_poly_loop)
+_local_poly_compiled = _jit(_local_poly_loop, error_model="numpy")  # vectorised divisions
 
 
 def local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
@@ -196,10 +240,7 @@ def local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.nda
     """
     if _local_poly_compiled is None:
         raise RuntimeError("streamfix.core.kernels.local_poly needs numba; use streamfix.core.pipeline._local_poly")
-    k = np.arange(-h, h + 1, dtype=np.float64)
-    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
-    u = k / h
-    taps = np.stack([K * u**m for m in range(5)])  # the same coefficients as the reference
+    taps = _poly_taps(int(h))  # the same coefficients as the reference
     y = np.ascontiguousarray(y, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
     fit = np.empty_like(y)
@@ -465,26 +506,51 @@ def robust_temporal_fit(
         raise RuntimeError("streamfix.core.kernels.robust_temporal_fit needs numba; use streamfix.core.pipeline's")
     x = np.asarray(positions, dtype=np.float64)
     n_frames, n_joints, _ = x.shape
-    y = x.reshape(n_frames, 3 * n_joints)
-    prior = np.repeat(np.asarray(weights, dtype=np.float64), 3, axis=1)
-    prior = np.where(np.isfinite(y), prior, 0.0)
-    obs = prior > 0
-    y0 = np.where(obs, y, 0.0)
-    med = running_median(np.where(obs, y, np.nan), 2 * h + 1)
-    fit = np.where(np.isfinite(med), med, 0.0)
-    support = np.zeros_like(y0)
-    k = np.arange(-h, h + 1, dtype=np.float64)
-    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
-    u = k / h
-    taps = np.stack([K * u**m for m in range(5)])
-    w = np.empty_like(y0)
-    for c in scales_m:  # graduated non-convexity: wide basin first, then sharpen
-        _tukey_weights_compiled(y0, fit, obs, prior, float(c), w)
-        fit = np.empty_like(y0)
-        _local_poly_compiled(y0, w, taps, fit, support, _PIVOT_RTOL)
-    resid = np.where(obs, y0 - fit, np.nan)
+    y = np.ascontiguousarray(x.reshape(n_frames, 3 * n_joints))
+    fit = np.empty_like(y)
+    resid = np.empty_like(y)
+    support = np.zeros_like(y)
+    _robust_fit_compiled(
+        y, np.ascontiguousarray(weights, dtype=np.float64), int(h), np.asarray(scales_m, dtype=np.float64),
+        _poly_taps(int(h)), fit, resid, support,
+    )
     shape = (n_frames, n_joints, 3)
     return fit.reshape(shape), resid.reshape(shape), support.reshape(shape)
+
+
+def _robust_fit_loop(y, weights, h, scales, taps, fit, resid, support):  # pragma: no cover - compiled
+    """:func:`robust_temporal_fit` on ``y`` ``(T, 3J)``, ``weights`` ``(T, J)``: one compiled call."""
+    n_frames, n_ch = y.shape
+    prior = np.empty((n_frames, n_ch))
+    obs = np.empty((n_frames, n_ch), dtype=np.bool_)
+    y0 = np.empty((n_frames, n_ch))
+    ynan = np.empty((n_frames, n_ch))
+    for t in range(n_frames):
+        for k in range(n_ch):
+            v = y[t, k]
+            p = weights[t, k // 3] if np.isfinite(v) else 0.0
+            prior[t, k] = p
+            o = p > 0
+            obs[t, k] = o
+            y0[t, k] = v if o else 0.0
+            ynan[t, k] = v if o else np.nan
+    med = np.empty((n_frames, n_ch))
+    _running_median_compiled(ynan, 2 * h + 1, med)
+    cur = np.empty((n_frames, n_ch))
+    for t in range(n_frames):
+        for k in range(n_ch):
+            cur[t, k] = med[t, k] if np.isfinite(med[t, k]) else 0.0
+    w = np.empty((n_frames, n_ch))
+    for c in scales:  # graduated non-convexity: wide basin first, then sharpen
+        _tukey_weights_compiled(y0, cur, obs, prior, c, w)
+        _local_poly_compiled(y0, w, taps, fit, support, _PIVOT_RTOL)
+        cur[:, :] = fit
+    for t in range(n_frames):
+        for k in range(n_ch):
+            resid[t, k] = y0[t, k] - fit[t, k] if obs[t, k] else np.nan
+
+
+_robust_fit_compiled = _jit(_robust_fit_loop, error_model="numpy")  # its local quadratics vectorise too
 
 
 # --------------------------------------------------------------------------- Theil-Sen line (live gate)
@@ -558,6 +624,134 @@ def theil_sen_line(hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarr
     return r, sigma
 
 
+# --------------------------------------------------------------------------- live step (gate, One Euro, projection)
+def _live_step_loop(
+    x, valid, t, hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
+    min_cutoff, beta, d_cutoff, gate_min_m, gate_k, tree_p, tree_c, child_len, project, y_out, outlier,
+):  # pragma: no cover - compiled
+    n_rows, n_joints, _ = hist.shape
+    # the raw history moves up one row; the newest row is this frame (NaN where invalid)
+    for i in range(n_rows - 1):
+        for j in range(n_joints):
+            for c in range(3):
+                hist[i, j, c] = hist[i + 1, j, c]
+    for j in range(n_joints):
+        for c in range(3):
+            hist[n_rows - 1, j, c] = x[j, c] if valid[j] else np.nan
+    r = np.empty((n_joints, 3))
+    sigma = np.empty((n_joints, 3))
+    _theil_sen_compiled(hist, u, pi, pj, r, sigma)
+    g = np.empty((n_joints, 3))
+    n_gated = 0
+    for j in range(n_joints):
+        any_out = False
+        for c in range(3):
+            have_ref = np.isfinite(r[j, c])
+            innov = abs(x[j, c] - r[j, c])
+            if np.isfinite(sigma[j, c]):  # residual scale, EMA over ~10 frames
+                if np.isfinite(scale[j, c]):
+                    scale[j, c] = 0.9 * scale[j, c] + 0.1 * sigma[j, c]
+                else:
+                    scale[j, c] = sigma[j, c]
+            s = scale[j, c] if np.isfinite(scale[j, c]) else gate_min_m
+            tau = max(gate_min_m, gate_k * s)
+            out = valid[j] and have_ref and innov > tau
+            outlier[j, c] = out
+            any_out = any_out or out
+            if valid[j] and not out:
+                g[j, c] = x[j, c]
+            elif have_ref:
+                g[j, c] = r[j, c]
+            else:
+                g[j, c] = last[j, c]
+        if any_out:
+            n_gated += 1
+    # One Euro (Casiez et al. 2012), per joint with a finite gated sample
+    for j in range(n_joints):
+        ok = np.isfinite(g[j, 0]) and np.isfinite(g[j, 1]) and np.isfinite(g[j, 2])
+        if not ok:
+            continue
+        if not fseen[j]:
+            for c in range(3):
+                fx[j, c] = g[j, c]
+                fdx[j, c] = 0.0
+            ft[j] = t
+            fseen[j] = True
+            continue
+        dt = max(t - ft[j], 1e-6)
+        a_d = 1.0 / (1.0 + (1.0 / (2.0 * np.pi * d_cutoff)) / dt)
+        for c in range(3):
+            x_prev = fx[j, c]
+            dx = (g[j, c] - x_prev) / dt
+            dx_hat = a_d * dx + (1.0 - a_d) * fdx[j, c]
+            cutoff = min_cutoff + beta * abs(dx_hat)
+            a = 1.0 / (1.0 + (1.0 / (2.0 * np.pi * cutoff)) / dt)
+            fx[j, c] = a * g[j, c] + (1.0 - a) * x_prev
+            fdx[j, c] = dx_hat
+        ft[j] = t
+    for j in range(n_joints):
+        for c in range(3):
+            y_out[j, c] = fx[j, c] if np.isfinite(fx[j, c]) else last[j, c]
+    if project:
+        # each child at its bone length from its unprojected parent, along the bone
+        y = y_out.copy()
+        for b in range(tree_p.shape[0]):
+            p = tree_p[b]
+            q = tree_c[b]
+            v0 = y[q, 0] - y[p, 0]
+            v1 = y[q, 1] - y[p, 1]
+            v2 = y[q, 2] - y[p, 2]
+            norm = np.sqrt(v0 * v0 + v1 * v1 + v2 * v2)  # the order of np.linalg.norm's sum
+            target = child_len[q]
+            k = 1.0
+            if np.isfinite(target) and norm > 1e-9 and np.isfinite(norm):
+                k = target / norm
+            n0 = y[p, 0] + v0 * k
+            n1 = y[p, 1] + v1 * k
+            n2 = y[p, 2] + v2 * k
+            if np.isfinite(n0) and np.isfinite(n1) and np.isfinite(n2):
+                y_out[q, 0] = n0
+                y_out[q, 1] = n1
+                y_out[q, 2] = n2
+    return n_gated
+
+
+_live_step_compiled = _jit(_live_step_loop)
+
+
+def live_step(
+    x: np.ndarray, valid: np.ndarray, t: float, hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarray,
+    scale: np.ndarray, last: np.ndarray, filter_state: tuple, params: tuple, tree_parent: np.ndarray,
+    tree_child: np.ndarray, child_len: np.ndarray, project: bool,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One frame of the live path's default chain, compiled: the Theil-Sen gate, the One
+    Euro filter and the non-propagating bone projection of
+    :meth:`streamfix.streaming.live.LivePath.step` in one call, bit for bit.
+
+    ``x`` ``(J, 3)`` m, ``valid`` ``(J,)``, ``t`` s. The state arrays are updated in place:
+    ``hist`` ``(K, J, 3)`` raw samples, ``scale`` ``(J, 3)`` m,
+    ``filter_state`` = the One Euro filter's ``(x, dx, t, seen)``; ``last`` ``(J, 3)`` m, the
+    previous output (read only). ``params`` =
+    ``(min_cutoff Hz, beta, d_cutoff Hz, gate_min_m m, gate_k)``; ``tree_parent``,
+    ``tree_child`` ``(k,)`` the tree's bones; ``child_len`` ``(J,)`` m. Returns ``(positions (J, 3),
+    outlier (J, 3) bool, joints gated)``. Needs numba (:data:`HAVE_NUMBA`).
+    """
+    if _live_step_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.live_step needs numba; use LivePath.step's numpy path")
+    n_joints = hist.shape[1]
+    y = np.empty((n_joints, 3))
+    outlier = np.empty((n_joints, 3), dtype=np.bool_)
+    fx, fdx, ft, fseen = filter_state
+    min_cutoff, beta, d_cutoff, gate_min_m, gate_k = params
+    n = _live_step_compiled(
+        np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(valid, dtype=np.bool_), float(t),
+        hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
+        float(min_cutoff), float(beta), float(d_cutoff), float(gate_min_m), float(gate_k),
+        tree_parent, tree_child, child_len, bool(project), y, outlier,
+    )
+    return y, outlier, int(n)
+
+
 # --------------------------------------------------------------------------- bone spread
 def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma: no cover - compiled
     n_frames = positions.shape[0]
@@ -582,7 +776,8 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma:
         devs[b] = np.nan
         if n == 0:
             continue
-        s = np.sort(buf[:n])
+        s = buf[:n]
+        s.sort()  # in place: no array allocated per bone
         typical = (s[(n - 1) // 2] + s[n // 2]) / 2.0
         if not typical > min_bone_m:
             continue
@@ -591,7 +786,8 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma:
             if lengths[t] == lengths[t]:
                 buf[n] = abs(lengths[t] - typical)
                 n += 1
-        s = np.sort(buf[:n])
+        s = buf[:n]
+        s.sort()
         devs[b] = (s[(n - 1) // 2] + s[n // 2]) / 2.0
 
 
@@ -628,7 +824,8 @@ def _shorth_mode_loop(values, fraction, out):  # pragma: no cover - compiled
         if n == 0:
             out[b] = np.nan
             continue
-        s = np.sort(buf[:n])
+        s = buf[:n]
+        s.sort()  # in place: no array allocated per column
         h = max(int(np.ceil(fraction * n)), 1)
         best = 0
         best_width = np.inf
@@ -679,4 +876,9 @@ def warm_up() -> None:
     gauss_newton_update(finite, finite, np.zeros_like(finite), 1.0, 10.0, bones, lengths, np.ones((2, 2)))
     bone_spread_deviations(finite, np.ones((12, 3), dtype=bool), bones, 0.01)
     shorth_mode(x[:, :, 0], 0.5)
-    theil_sen_line(x[:7], np.arange(7.0), *[np.ascontiguousarray(a) for a in np.triu_indices(7, 1)])
+    pi, pj = (np.ascontiguousarray(a) for a in np.triu_indices(7, 1))
+    theil_sen_line(x[:7], np.arange(7.0), pi, pj)
+    state = (np.full((3, 3), np.nan), np.zeros((3, 3)), np.zeros(3), np.zeros(3, dtype=bool))
+    live_step(finite[0], np.ones(3, dtype=bool), 0.0, x[:7].copy(), np.arange(7.0), pi, pj, np.full((3, 3), np.nan),
+              np.full((3, 3), np.nan), state, (1.0, 0.5, 1.0, 0.03, 4.0), bones[:, 0].copy(), bones[:, 1].copy(),
+              np.full(3, 0.5), True)

@@ -3,7 +3,11 @@
 * :mod:`.ring` -- per-body ring buffer of the last W frames (O(1) push, window views).
 * :mod:`.live` -- the causal ``live`` path (Theil-Sen outlier gate, One Euro, bone projection).
 * :mod:`.engine` -- :class:`StreamEngine` / :class:`ThreadedStreamEngine`: frames in,
-  ``live`` and ``clean`` frames out (hop, lookahead, overlap-add, drops, bodies, degradation).
+  ``live`` and ``clean`` frames out (hop, lookahead, overlap-add, drops, bodies, degradation);
+  the coordinator of :mod:`.config` (its settings), :mod:`.bodies` (per-body and per-stream
+  state), :mod:`.blending` (hand-over weights), :mod:`.histogram` (latency metrics),
+  :mod:`.solver_api` (what a window solver takes and returns) and :mod:`.window_solvers`
+  (the solvers it ships).
 * :mod:`.offline` -- :func:`clean_motion`: a whole motion through the same engine.
 * :mod:`.bridging` -- the default window solver: joints missing for >= 1/3 of a window
   and blackouts are filled (PCA on the body's clean history, the prior's D(z*) for

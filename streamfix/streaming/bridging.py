@@ -87,7 +87,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..skeletons import Skeleton
-from .engine import WindowOutput
+from .solver_api import WindowOutput
 
 __all__ = [
     "BridgingWindowSolver",

@@ -106,14 +106,12 @@ value (flagged recovered where the live path recovered them). Input is never
 blocked or dropped; every input frame still appears once on ``clean``.
 :meth:`StreamEngine.metrics` reports the level, hop, iterations and counters.
 """
+
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
-from collections import deque
-from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -121,8 +119,29 @@ from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
 from ..core.isometry import length_mode_with_support, symmetric_lengths
 from ..limbs import mirror_bones
-from .live import LiveConfig, LivePath
-from .ring import RingBuffer
+from .blending import HANDOVER_S, handover_weights
+from .bodies import (  # the constants are re-exported: the engine's documented settings
+    BONE_HISTORY_S,
+    BONE_MEMORY_S,  # noqa: F401
+    BONE_OWN_SUPPORT_S,
+    BONE_SUPPORT_FRAMES,
+    BONE_PEAK_SHARE,
+    BONE_SUPPORT_TOL_M,
+    GUESSED_SHARE_POOLED,
+    HISTORY_S,  # noqa: F401
+    RECOVERED_CONFIDENCE,  # noqa: F401
+    Body,
+    Job,
+    PendingFrame,
+    StreamState,
+    hop_phase,
+    output_confidence,
+)
+from .config import DEFAULT_HOP_S, DEFAULT_LOOKAHEAD_S, DEFAULT_WINDOW_S, EngineConfig  # noqa: F401
+from .histogram import Histogram
+from .live import LivePath
+from .solver_api import WindowOutput, WindowSolver
+from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations
 
 __all__ = [
     "EngineConfig",
@@ -137,429 +156,7 @@ __all__ = [
     "Histogram",
 ]
 
-WindowSolver = Callable[..., Any]
-"""``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,
-rate_hz, config=..., state=None, init=None)`` returning an object with ``.positions
-(T,J,3)``, ``.recovered (T,J)``, ``.state``, ``.iterations``, ``.converged`` -- the
-signature of :func:`streamfix.core.pipeline.clean_window`."""
 
-
-# --------------------------------------------------------------------------- config
-DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
-DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean latency)
-DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
-
-
-@dataclass(frozen=True)
-class EngineConfig:
-    """Streaming engine settings (frames, seconds, Hz).
-
-    window W, hop H, lookahead L: frames, ``1 <= H <= L + 1 <= W``; the clean output's
-    latency is ``L / rate_hz`` s plus compute. Left None, they follow the defaults in
-    seconds (W 2 s, H 1/3 s, L 0.5 s) at ``rate_hz``: 60/10/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
-    detection, filters). live: the live path's settings. max_iterations: solver
-    iteration cap per window (None = the solver's default). solver_config: passed as
-    ``config=`` to the window solver (None = its default). bone_lengths: fixed
-    ``(B,)`` bone lengths in metres (None = estimated robustly per body).
-    degrade: allow degradation in threaded mode. degraded_iterations: iterations at
-    level 1 (None = half of max_iterations, or 10 if that is None). max_hop: hop at the
-    deepest level (None = W // 2). max_pending_windows: windows queued per tracked body beyond which
-    new windows are skipped. max_clean_delay_s: how long beyond the lookahead a frame may
-    wait for a stalled window before it is abandoned (at most ``8 W`` frames).
-    recover_after: healthy windows
-    before recovering a level. body_timeout_s: grace period of an absent body.
-    fill_drops: synthesise dropped frames. drop_gap_factor: a timestamp gap above this
-    many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
-    threaded: solve windows in a worker thread (the service's mode). lookahead_s: the
-    lookahead in seconds instead of frames (rounded at ``rate_hz``; wins if given).
-    live_anchor: re-anchor the live path's 'predict' gate on each solved window's newest
-    frames when the solution is current (the live output is "corrected by the last
-    solved window"; it stays causal). Off by default: the window's newest frames have no
-    lookahead and measured worse than the Theil-Sen gate alone.
-    live_output: run the live path and emit ``live`` frames. False (offline cleaning,
-    which keeps only ``clean``) skips the live path's per-frame work; ``clean`` is
-    unchanged except for a joint that no solved window gives a value (a window that
-    failed or was skipped), which is then NaN and recovered instead of the live value;
-    ``metrics()['joints_live_fallback']`` counts such joint-frames (the offline runner
-    re-runs with the live path when it is not 0).
-    """
-
-    window: int | None = None
-    hop: int | None = None
-    lookahead: int | None = None
-    rate_hz: float = 30.0
-    live: LiveConfig = field(default_factory=LiveConfig)
-    max_iterations: int | None = None
-    solver_config: Any = None
-    bone_lengths: tuple[float, ...] | None = None
-    degrade: bool = True
-    degraded_iterations: int | None = None
-    max_hop: int | None = None
-    max_pending_windows: int = 4
-    max_clean_delay_s: float = 2.0
-    recover_after: int = 8
-    body_timeout_s: float = 1.0
-    fill_drops: bool = True
-    drop_gap_factor: float = 1.5
-    max_fill_s: float = 1.0
-    threaded: bool = False
-    lookahead_s: float | None = None
-    live_anchor: bool = False
-    live_output: bool = True
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError(f"rate_hz must be a positive number, got {self.rate_hz}")
-        if self.lookahead_s is not None:  # seconds win over frames
-            if not self.lookahead_s >= 0:
-                raise ValueError(f"lookahead_s must be >= 0 s, got {self.lookahead_s}")
-            object.__setattr__(self, "lookahead", int(round(self.lookahead_s * self.rate_hz)))
-            object.__setattr__(self, "lookahead_s", None)
-        # frame counts left unset follow the defaults in seconds at this rate
-        for name, seconds in (("window", DEFAULT_WINDOW_S), ("lookahead", DEFAULT_LOOKAHEAD_S), ("hop", DEFAULT_HOP_S)):
-            if getattr(self, name) is None:
-                n = max(1, int(round(seconds * self.rate_hz)))
-                if name == "lookahead":
-                    n = min(n, self.window - 1)
-                if name == "hop":
-                    n = min(n, self.lookahead + 1)
-                object.__setattr__(self, name, n)
-        W, H, L = self.window, self.hop, self.lookahead
-        if W < 4:
-            raise ValueError(f"window must be >= 4 frames (typically 50-300), got {W}")
-        if not 0 <= L <= W - 1:
-            raise ValueError(f"lookahead must be in 0..window-1 = 0..{W - 1} frames, got {L}")
-        if not 1 <= H <= L + 1:
-            raise ValueError(f"hop must be in 1..lookahead+1 = 1..{L + 1} frames, got {H}")
-        if self.max_hop is not None and not H <= self.max_hop <= W:
-            raise ValueError(f"max_hop must be in hop..window = {H}..{W}, got {self.max_hop}")
-        if self.max_iterations is not None and self.max_iterations < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        if self.drop_gap_factor <= 1.0:
-            raise ValueError(f"drop_gap_factor must be > 1 frame period, got {self.drop_gap_factor}")
-        if self.max_pending_windows < 1:
-            raise ValueError(f"max_pending_windows must be >= 1, got {self.max_pending_windows}")
-
-    @property
-    def latency_s(self) -> float:
-        """Fixed latency of the clean output before compute (the lookahead), seconds."""
-        return self.lookahead / self.rate_hz
-
-    @property
-    def hop_limit(self) -> int:
-        return self.max_hop if self.max_hop is not None else max(self.hop, self.window // 2)
-
-
-# --------------------------------------------------------------------------- solvers
-@dataclass
-class WindowOutput:
-    """What a window solver returns (the fields the engine uses)."""
-
-    positions: np.ndarray
-    recovered: np.ndarray
-    state: Any = None
-    iterations: int = 0
-    converged: bool = True
-    info: dict = field(default_factory=dict)
-    bridged: dict = field(default_factory=dict)  # source -> joint-frames filled before the solver
-
-
-def alm_window_solver(
-    positions: np.ndarray,
-    confidence: np.ndarray,
-    bones: np.ndarray,
-    bone_lengths: np.ndarray | None,
-    rate_hz: float,
-    config: Any = None,
-    state: Any = None,
-    init: np.ndarray | None = None,
-) -> WindowOutput:
-    """Adapter: :func:`streamfix.core.alm.solve` (Yang et al. Algorithm 1) as a window solver.
-
-    ``config`` is a :class:`~streamfix.core.alm.SolverParams` (None = defaults).
-    ``recovered`` = unobserved, or observed but moved by the sparse term E by > 2 cm.
-    """
-    from ..core.alm import SolverParams, solve
-
-    params = config if config is not None else SolverParams()
-    observed = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
-    res = solve(positions, observed, bones, bone_lengths, params, init=init, state=state)
-    err = np.linalg.norm(np.nan_to_num(res.sparse_error), axis=2)
-    recovered = ~observed | (err > 0.02)
-    return WindowOutput(res.positions, recovered, res.state, int(res.iterations), bool(res.converged))
-
-
-def default_window_solver() -> WindowSolver:
-    """``streamfix.core.pipeline.clean_window`` behind the long-gap bridge
-    (:class:`~streamfix.streaming.bridging.BridgingWindowSolver`: joints missing for
-    >= 1/3 of a window and blackouts are filled from PCA on the body's clean history or
-    the learned prior first), else the ALM adapter."""
-    try:
-        from ..core.pipeline import clean_window  # type: ignore[attr-defined]  # noqa: F401
-    except ImportError:
-        return alm_window_solver
-    from .bridging import BridgingWindowSolver
-
-    return BridgingWindowSolver()
-
-
-def _wants(solver: WindowSolver, flag: str) -> bool:
-    """True when the solver declares ``flag`` (``wants_history``: takes ``history=``;
-    ``wants_skeleton``: takes ``skeleton=``), itself or one wrapper level (``.solver``)."""
-    if getattr(solver, flag, False):
-        return True
-    inner = getattr(solver, "solver", None)
-    return inner is not None and inner is not solver and bool(getattr(inner, flag, False))
-
-
-def _with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any:
-    """A copy of a solver config with its iteration cap set to ``n`` (if it has one)."""
-    if n is None:
-        return config
-    solver = getattr(solver, "base_solver", solver)  # a wrapping solver: its base's config
-    if config is None:
-        if solver is alm_window_solver:
-            from ..core.alm import SolverParams
-
-            return SolverParams(max_iter=n)
-        try:
-            import inspect
-
-            default = inspect.signature(solver).parameters["config"].default
-        except (KeyError, TypeError, ValueError):
-            return None
-        if default is inspect.Parameter.empty or default is None:
-            return None
-        config = default
-    if not dataclasses.is_dataclass(config):
-        return config
-    names = {f.name for f in dataclasses.fields(config)}
-    for key in ("max_iterations", "max_iter", "solver_max_iter", "iterations"):
-        if key in names:
-            return dataclasses.replace(config, **{key: n})
-    for key in ("solver", "params", "solver_params", "alm"):
-        if key in names:
-            inner = getattr(config, key)
-            new_inner = _with_max_iterations(inner, n, solver) if inner is not None else None
-            if new_inner is not inner:
-                return dataclasses.replace(config, **{key: new_inner})
-    return config
-
-
-HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
-
-
-def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None) -> np.ndarray:
-    """Overlap-add weight of a window for frames that saw ``future`` (>= 1) of its frames
-    after them: a complementary crossfade over the ``K = L + 1 - H`` frames two
-    consecutive windows share.
-
-    A frame ``n`` is blended from the windows ending at ``e`` with ``1 <= d = e - n <= L + 1``;
-    with a regular hop, two consecutive windows overlap on ``K`` frames where the older
-    one has ``d = K - j`` and the newer ``d = L + 1 - j`` (``j = 0..K-1``). The weight
-    rises as ``s((d - 1/2) / K)`` over the first ``K`` values of ``d`` and falls as
-    ``s((L + 3/2 - d) / K)`` over the last ``K``, ``s`` the smoothstep: on the shared frames
-    the two weights sum to 1 (``s(x) + s(1 - x) = 1``), the newer window (more future,
-    fewer edge effects) takes over smoothly, and neither window's arrival nor departure
-    steps the output. ``crossfade`` ``F <= K`` shortens the fade to the first ``F`` shared
-    frames: the newer window then takes over sooner. The engine uses ``HANDOVER_S``: a
-    longer fade hides hand-overs better but leaves more frames to the older window's edge,
-    which costs accuracy under heavy corruption; 0.17 s is the longest fade that keeps the
-    clean output within 1.25x of the whole-take solve at 20 % (``tests/test_e2e_quality.py``),
-    the seam is checked by ``tests/test_support_limbs.py`` and the benchmarks' seam ratio.
-    A taper by position in the window gave the entering window about half the weight: a
-    kink in the clean output every hop.
-    """
-    d = np.asarray(future, dtype=np.float64)
-    K = max(int(lookahead) + 1 - int(hop), 1)
-    F = K if crossfade is None else min(max(int(crossfade), 1), K)
-
-    def smoothstep(z: np.ndarray) -> np.ndarray:
-        z = np.clip(z, 0.0, 1.0)
-        return z * z * (3.0 - 2.0 * z)
-
-    rise = smoothstep((d - 0.5 - (K - F)) / F)
-    fall = smoothstep((lookahead + 1.5 - d) / F)
-    return 1e-3 + np.minimum(rise, fall)
-
-
-# --------------------------------------------------------------------------- metrics
-class Histogram:
-    """Fixed-bucket histogram of durations (s) plus a window of recent samples."""
-
-    BOUNDS = (0.0001, 0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
-
-    def __init__(self, recent: int = 2048) -> None:
-        self.counts = np.zeros(len(self.BOUNDS) + 1, dtype=np.int64)
-        self.total = 0.0
-        self.n = 0
-        self.recent: deque[float] = deque(maxlen=recent)
-
-    def observe(self, seconds: float) -> None:
-        self.counts[int(np.searchsorted(self.BOUNDS, seconds))] += 1
-        self.total += seconds
-        self.n += 1
-        self.recent.append(seconds)
-
-    def snapshot(self) -> dict:
-        rec = np.asarray(self.recent) if self.recent else np.zeros(0)
-        return {
-            "bounds_s": list(self.BOUNDS),  # upper bounds; last count is +Inf
-            "counts": self.counts.tolist(),  # per bucket, not cumulative
-            "sum_s": self.total,
-            "count": self.n,
-            "p50_s": float(np.percentile(rec, 50)) if rec.size else 0.0,
-            "p99_s": float(np.percentile(rec, 99)) if rec.size else 0.0,
-            "max_s": float(rec.max()) if rec.size else 0.0,
-        }
-
-
-# --------------------------------------------------------------------------- internals
-BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-window estimates
-BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
-BONE_SUPPORT_FRAMES = 4  # raw samples that must agree with a bone's mode before it is trusted
-BONE_SUPPORT_TOL_M = 0.005  # ... to within this (m)
-GUESSED_SHARE_POOLED = (0.02, 0.1)  # share of a bone's samples with an inferred end: from the first, pooling with
-# its mirror begins; from the second, the pair shares one length (symmetric_lengths)
-BONE_OWN_SUPPORT_S = 1.0  # tracked samples a bone needs to keep its own length (else inferred ones, the mirror's)
-BONE_PEAK_SHARE = 0.1  # share of a bone's raw samples that must lie within BONE_SUPPORT_TOL_M of its mode
-HISTORY_S = 10.0
-"""Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
-solvers with ``wants_history`` (PCA gap filling trains on it)."""
-RECOVERED_CONFIDENCE = 0.5
-"""Confidence the engine gives a joint it recovered (protocol/SPEC.md: "its confidence is
-the service's estimate"): the sensor's own value for a guessed joint (inferred)."""
-
-
-def _output_confidence(pos: np.ndarray, conf_in: np.ndarray | None, recovered: np.ndarray) -> np.ndarray:
-    """Per-joint output confidence: the sensor's for observed joints,
-    :data:`RECOVERED_CONFIDENCE` for recovered ones, 0 where there is no position."""
-    finite = np.isfinite(pos).all(axis=1)
-    base = np.zeros(len(pos)) if conf_in is None else np.asarray(conf_in, dtype=np.float64)
-    return np.where(finite, np.where(recovered, RECOVERED_CONFIDENCE, base), 0.0)
-
-
-class _Job:
-    """One window to solve for one body: frames [start, end) of its timeline."""
-
-    __slots__ = (
-        "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
-        "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final", "history",
-    )
-
-    def __init__(self, body: "_Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
-        self.body = body
-        self.start, self.end = start, end
-        self.positions, self.confidence = positions, confidence
-        self.bone_lengths = bone_lengths
-        self.iterations = iterations
-        self.status = "pending"  # pending -> done | skipped | abandoned
-        self.result_pos = self.result_rec = None
-        self.solve_s = 0.0
-        self.n_iter = 0
-        self.converged = False
-        self.error: str | None = None
-        self.final = final
-        self.history: np.ndarray | None = None
-
-
-def _hop_phase(ordinal: int, hop: int) -> int:
-    """Frames (0 <= p < hop) by which the ``ordinal``-th body's windows are offset.
-
-    Bodies that appear together would otherwise all schedule their windows on the same
-    frame, and the worker solves them one after another: with 12 bodies the last
-    waited 12 solves (clean p99 ~250 ms beyond the lookahead in bench_service). The
-    golden-ratio sequence spreads any number of bodies evenly over the hop. The
-    first body gets 0, so a single body's output is unchanged. Only the second window
-    comes early (its hop is shorter), so every frame is still covered (H <= L + 1).
-    """
-    return int(((ordinal * 0.6180339887498949) % 1.0) * hop)
-
-
-class _Body:
-    """Everything the engine keeps about one tracked body of one stream."""
-
-    def __init__(self, body_id: int, g0: int, cfg: EngineConfig, skeleton: Skeleton, backlog: int, prior_lengths=None):
-        J = skeleton.n_joints
-        B = skeleton.n_bones
-        self.body_id = body_id
-        self.g0 = g0  # stream frame index of timeline frame 0
-        self.ring = RingBuffer(cfg.window, J)
-        cap = cfg.window + backlog + cfg.hop_limit + 2
-        self.cap = cap
-        # per-frame output accumulators, indexed by timeline frame % cap
-        self.mean = np.zeros((cap, J, 3))
-        self.den = np.zeros((cap, J))
-        self.recw = np.zeros((cap, J))
-        self.live = np.full((cap, J, 3), np.nan)
-        self.live_rec = np.zeros((cap, J), dtype=bool)
-        self.conf = np.zeros((cap, J))
-        self.valid = np.zeros((cap, J), dtype=bool)
-        self.present = np.zeros(cap, dtype=bool)
-        self.count = 0  # frames in the timeline
-        self.final_upto = 0  # next frame to finalise
-        self.next_end = cfg.lookahead + 1  # end of the next window to schedule
-        self.phase = 0  # frames the second window comes early by (spreads bodies over the hop)
-        self.last_scheduled_end = 0
-        self.last_processed_end = 0
-        self.last_present = -1
-        self.absent = 0  # consecutive absent frames
-        self.jobs: deque[_Job] = deque()
-        self.ending = False
-        # worker-owned warm-start state
-        self.solver_state = None
-        self.solver_state_end = -1
-        # bone lengths sampled from the body's clean output (median -> clean_lengths)
-        self.clean_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
-        self.clean_bones_n = 0
-        self.clean_lengths: np.ndarray | None = None
-        # per-frame bone lengths of the raw input where both ends are tracked (ring, NaN = none)
-        self.raw_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
-        self.raw_bones_seen = np.full_like(self.raw_bones, np.nan)  # the same, inferred samples too
-        self.raw_bones_end = 0  # absolute frame index up to which raw_bones is filled
-        self.prior_lengths = prior_lengths
-        self.live_path: LivePath | None = None
-        # the body's recent clean output for history-trained solvers (ring, oldest first on read)
-        self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
-        self.hist_n = 0
-
-    def history(self) -> np.ndarray:
-        """``(T_h, J, 3)`` copy of the kept clean history, oldest frame first."""
-        n, cap = self.hist_n, len(self.hist)
-        if n <= cap:
-            return self.hist[:n].copy()
-        k = n % cap
-        return np.concatenate([self.hist[k:], self.hist[:k]])
-
-
-class _Pending:
-    """A stream frame awaiting the clean values of its bodies."""
-
-    __slots__ = ("seq", "time_ns", "filled", "order", "slots", "missing")
-
-    def __init__(self, seq: int, time_ns: int, filled: bool, order: list[int]):
-        self.seq, self.time_ns, self.filled = seq, time_ns, filled
-        self.order = order
-        self.slots: dict[int, BodyFrame] = {}
-        self.missing = len(order)
-
-
-class _Stream:
-    def __init__(self, stream_id: str, seq0: int):
-        self.stream_id = stream_id
-        self.seq0 = seq0
-        self.g = -1  # index of the newest stream frame
-        self.last_in_seq: int | None = None
-        self.last_time_ns: int | None = None
-        self.bodies: dict[int, _Body] = {}  # active bodies
-        self.ending: list[_Body] = []  # bodies that left, finishing their last window
-        self.last_present: list[int] = []  # body ids of the newest real frame
-        self.pending: dict[int, _Pending] = {}
-        self.emit_g = 0
-        self.retired: dict[int, np.ndarray | None] = {}
-
-
-# --------------------------------------------------------------------------- engine
 class StreamEngine:
     """Per-stream, per-body streaming cleaner (synchronous unless ``threaded``).
 
@@ -580,8 +177,8 @@ class StreamEngine:
         self.skeleton = skeleton
         self.cfg = config if config is not None else EngineConfig()
         self.solver = window_solver if window_solver is not None else default_window_solver()
-        self._history = _wants(self.solver, "wants_history")
-        self._pass_skeleton = _wants(self.solver, "wants_skeleton")
+        self._history = wants(self.solver, "wants_history")
+        self._pass_skeleton = wants(self.solver, "wants_skeleton")
         self._mirror_bones = mirror_bones(skeleton)
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
@@ -597,7 +194,7 @@ class StreamEngine:
         # frames a stalled window may hold back (bounded: it sizes the per-body buffers)
         self._backlog = int(min(round(self.cfg.max_clean_delay_s * self.cfg.rate_hz), 8 * self.cfg.window))
         self._timeout = max(1, int(round(self.cfg.body_timeout_s * self.cfg.rate_hz)))
-        self.streams: dict[str, _Stream] = {}
+        self.streams: dict[str, StreamState] = {}
         threaded = self.cfg.threaded if threaded is None else bool(threaded)
         self.threaded = threaded
         # degradation
@@ -657,7 +254,7 @@ class StreamEngine:
         out: list[tuple[str, SkeletonFrame]] = []
         st = self.streams.get(frame.stream_id)
         if st is None:
-            st = self.streams[frame.stream_id] = _Stream(frame.stream_id, int(frame.seq))
+            st = self.streams[frame.stream_id] = StreamState(frame.stream_id, int(frame.seq))
         elif self._is_late(st, frame):
             self.counters["frames_dropped_late"] += 1
             return out
@@ -793,13 +390,13 @@ class StreamEngine:
                 raise ValueError(f"stream {frame.stream_id!r} seq {frame.seq}: body {b.body_id} appears twice")
             ids.add(b.body_id)
 
-    def _is_late(self, st: _Stream, frame: SkeletonFrame) -> bool:
+    def _is_late(self, st: StreamState, frame: SkeletonFrame) -> bool:
         if st.last_in_seq is not None and int(frame.seq) <= st.last_in_seq:
             return True
         return st.last_time_ns is not None and int(frame.sensor_time_ns) < st.last_time_ns
 
     # ------------------------------------------------------------------ per frame
-    def _advance(self, st: _Stream, frame: SkeletonFrame | None, t_ns: int, out: list) -> None:
+    def _advance(self, st: StreamState, frame: SkeletonFrame | None, t_ns: int, out: list) -> None:
         """Add one stream frame (``frame`` None = a synthesised dropped frame)."""
         st.g += 1
         g = st.g
@@ -812,7 +409,7 @@ class StreamEngine:
             inputs = {b.body_id: b for b in frame.bodies}
             present_ids = [b.body_id for b in frame.bodies]
             st.last_present = present_ids
-        pend = _Pending(seq, t_ns, frame is None, present_ids)
+        pend = PendingFrame(seq, t_ns, frame is None, present_ids)
         st.pending[g] = pend
         if not present_ids:
             pend.missing = 0
@@ -823,11 +420,11 @@ class StreamEngine:
                 prior = st.retired.pop(bid, None)
                 if returning:
                     self.counters["bodies_reidentified"] += 1
-                body = _Body(bid, g, self.cfg, self.skeleton, self._backlog, prior)
+                body = Body(bid, g, self.cfg, self.skeleton, self._backlog, prior)
                 body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live)
                 lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
                 body.live_path.set_bone_lengths(lengths)
-                body.phase = _hop_phase(self.counters["bodies_seen"], self.hop)
+                body.phase = hop_phase(self.counters["bodies_seen"], self.hop)
                 st.bodies[bid] = body
                 self.counters["bodies_seen"] += 1
         live_bodies: list[BodyFrame] = []
@@ -863,7 +460,7 @@ class StreamEngine:
                 body.last_present = n
                 if self.cfg.live_output:
                     live_bodies.append(
-                        BodyFrame(bid, y.copy(), _output_confidence(y, conf if bf is not None else None, rec), rec.copy())
+                        BodyFrame(bid, y.copy(), output_confidence(y, conf if bf is not None else None, rec), rec.copy())
                     )
                     self.live_hist.observe(time.perf_counter() - t0)
             else:
@@ -893,7 +490,7 @@ class StreamEngine:
                 self._begin_end(st, body)
         self._drain(st, out)
 
-    def _raw_history_lengths(self, body: _Body) -> np.ndarray | None:
+    def _raw_history_lengths(self, body: Body) -> np.ndarray | None:
         """Shorth-mode bone lengths over the last ``BONE_MEMORY_S`` of raw input, if well supported.
 
         Frames where both ends of a bone are *tracked* count; a bone with less than
@@ -949,7 +546,7 @@ class StreamEngine:
             return est
         return None
 
-    def _robust_lengths(self, body: _Body) -> np.ndarray | None:
+    def _robust_lengths(self, body: Body) -> np.ndarray | None:
         """``(B,)`` bone lengths (m) for the solver and the live projection.
 
         Fixed lengths if configured; else the median over the body's last
@@ -980,14 +577,14 @@ class StreamEngine:
             return max(1, lvl1 // 2)
         return lvl1
 
-    def _schedule(self, st: _Stream, body: _Body, end: int, final: bool = False) -> None:
+    def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False) -> None:
         """Create the job for the window ending at ``end`` and solve/submit it."""
         W = self.cfg.window
         win = body.ring.window(W, end)
         if win.end - win.start < 1:
             return
         self.counters["windows_scheduled"] += 1
-        job = _Job(
+        job = Job(
             body, win.start, win.end, win.positions.copy(), win.confidence.copy(),
             self._robust_lengths(body), self._iterations(), final,
         )
@@ -1055,7 +652,7 @@ class StreamEngine:
         else:
             self.hop = self.cfg.hop
 
-    def _run_job(self, job: _Job) -> None:
+    def _run_job(self, job: Job) -> None:
         """Solve one window (worker thread in threaded mode); sets the job's result."""
         body = job.body
         T = job.end - job.start
@@ -1071,7 +668,7 @@ class StreamEngine:
                     state = st_.shifted(shift) if hasattr(st_, "shifted") else st_
                 except Exception:  # a state that cannot shift: solve cold
                     state = None
-        config = _with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
+        config = with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
         kwargs: dict[str, Any] = {"state": state}
         if self._history:
             kwargs["history"] = job.history
@@ -1125,7 +722,7 @@ class StreamEngine:
                     self._cond.notify_all()
 
     # ------------------------------------------------------------------ results
-    def _drain(self, st: _Stream, out: list) -> None:
+    def _drain(self, st: StreamState, out: list) -> None:
         """Blend finished windows, finalise frames, retire finished bodies, emit clean frames."""
         limit = self.cfg.lookahead + 1 + self._backlog
         for body in list(st.bodies.values()) + list(st.ending):
@@ -1142,7 +739,7 @@ class StreamEngine:
                 self._retire(st, body)
         self._emit(st, out)
 
-    def _process_jobs(self, st: _Stream, body: _Body) -> None:
+    def _process_jobs(self, st: StreamState, body: Body) -> None:
         """Blend finished windows at the head of the body's queue (in order)."""
         while body.jobs and body.jobs[0].status != "pending":
             job = body.jobs.popleft()
@@ -1163,7 +760,7 @@ class StreamEngine:
                 if self.cfg.live_anchor and self.cfg.live_output and job.end == body.count and job.result_pos is not None:
                     body.live_path.anchor(job.result_pos[-3:])
 
-    def _blend(self, body: _Body, job: _Job, prev_end: int) -> None:
+    def _blend(self, body: Body, job: Job, prev_end: int) -> None:
         """Overlap-add: fold the window's solution into the frames it is due to.
 
         Window ``e`` contributes to frame ``n`` iff ``n < e <= n + L + 1`` or, when the hop
@@ -1189,7 +786,7 @@ class StreamEngine:
         body.recw[rows] = body.recw[rows] + wj * r
         body.den[rows] = den
 
-    def _finalise(self, st: _Stream, body: _Body) -> None:
+    def _finalise(self, st: StreamState, body: Body) -> None:
         """Move the body's frames whose clean value can no longer change to the stream."""
         L = self.cfg.lookahead
         while body.final_upto < body.count:
@@ -1209,16 +806,19 @@ class StreamEngine:
             if body.present[k]:
                 den = body.den[k]
                 have = den > 0
-                if not have.all():  # no solved window gave these joints a value: the live one
+                if have.all():  # every joint has a window value (the usual case): no masking
+                    pos = body.mean[k].copy()
+                    rec = ~body.valid[k] | (body.recw[k] / den > 0.5)
+                else:  # no solved window gave these joints a value: the live one
                     self.counters["joints_live_fallback"] += int((~have).sum())
-                pos = np.where(have[:, None], body.mean[k], body.live[k])
-                recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
-                rec = ~body.valid[k] | ~have | (recw > 0.5)
-                rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])
+                    pos = np.where(have[:, None], body.mean[k], body.live[k])
+                    recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
+                    rec = ~body.valid[k] | ~have | (recw > 0.5)
+                    rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])
                 g = body.g0 + n
                 pend = st.pending.get(g)
                 if pend is not None:
-                    conf = _output_confidence(pos, body.conf[k], rec)
+                    conf = output_confidence(pos, body.conf[k], rec)
                     pend.slots[body.body_id] = BodyFrame(body.body_id, pos, conf, rec)
                     pend.missing -= 1
                     self.counters["joints_recovered"] += int(rec.sum())
@@ -1231,20 +831,33 @@ class StreamEngine:
                 body.hist_n += 1
             body.final_upto += 1
 
-    def _sample_clean_bones(self, body: _Body, pos: np.ndarray) -> None:
+    def _sample_clean_bones(self, body: Body, pos: np.ndarray) -> None:
+        """Bone lengths of one clean frame into the body's memory; every hop, their median
+        becomes the body's clean lengths. Frames are kept and measured once per hop, in one
+        array call (the same values as frame by frame)."""
         if not len(self.bones) or self._fixed_lengths is not None:
             return
-        lengths = np.linalg.norm(pos[self.bones[:, 1]] - pos[self.bones[:, 0]], axis=1)
-        body.clean_bones[body.clean_bones_n % len(body.clean_bones)] = lengths
+        body.clean_pending.append(pos.copy())  # the emitted frame may be changed by its receiver
         body.clean_bones_n += 1
         if body.clean_bones_n % self.cfg.hop == 0:
+            self._measure_clean_bones(body)
             rows = body.clean_bones[: min(body.clean_bones_n, len(body.clean_bones))]
             est = np.median(rows, axis=0)  # clean output is finite
             body.clean_lengths = est if np.isfinite(est).all() else None
             if self.cfg.live_output:
                 body.live_path.set_bone_lengths(est)
 
-    def _emit(self, st: _Stream, out: list) -> None:
+    def _measure_clean_bones(self, body: Body) -> None:
+        """Bone lengths (m) of the clean frames kept since the last hop, into ``clean_bones``."""
+        if not body.clean_pending:
+            return
+        frames = np.stack(body.clean_pending)
+        body.clean_pending = []
+        lengths = np.linalg.norm(frames[:, self.bones[:, 1]] - frames[:, self.bones[:, 0]], axis=2)
+        n = body.clean_bones_n
+        body.clean_bones[np.arange(n - len(frames), n) % len(body.clean_bones)] = lengths
+
+    def _emit(self, st: StreamState, out: list) -> None:
         while True:
             pend = st.pending.get(st.emit_g)
             if pend is None or pend.missing > 0:
@@ -1258,7 +871,7 @@ class StreamEngine:
             self.counters["clean_out"] += 1
 
     # ------------------------------------------------------------------ lifecycle
-    def _begin_end(self, st: _Stream, body: _Body) -> None:
+    def _begin_end(self, st: StreamState, body: Body) -> None:
         """Body leaves (timeout, flush, discontinuity): solve a last window up to its newest
         present frame; the body stops taking frames (a returning id starts a new body)."""
         if body.ending:
@@ -1271,14 +884,14 @@ class StreamEngine:
         if end > body.last_scheduled_end and end > body.final_upto:
             self._schedule(st, body, end, final=True)
 
-    def _retire(self, st: _Stream, body: _Body) -> None:
+    def _retire(self, st: StreamState, body: Body) -> None:
         if body in st.ending:
             st.ending.remove(body)
         st.retired[body.body_id] = self._robust_lengths(body)
         while len(st.retired) > 64:
             st.retired.pop(next(iter(st.retired)))
 
-    def _end_stream_bodies(self, st: _Stream, out: list) -> None:
+    def _end_stream_bodies(self, st: StreamState, out: list) -> None:
         """A discontinuity: every body leaves; its frames are emitted when its last window is done."""
         for body in list(st.bodies.values()):
             self._begin_end(st, body)

@@ -30,7 +30,9 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
 Measured (``OMP_NUM_THREADS=1``): on CMU 131_01 at 30 Hz with 10 / 20 % of entries
 corrupted by U(+-25 cm), live jitter 8.0x / 6.2x lower than the input's and live AJE
 18 / 29 mm (input 36 / 69 mm); on the five real Kinect v2 recordings jitter roughly
-halved; about 0.27 ms per body-frame.
+halved. With numba the default chain (this gate, One Euro, the projection without
+propagation) runs as one compiled call per body-frame (:func:`streamfix.core.kernels.live_step`,
+the same values); its cost is in ``benchmarks/results/streaming.json``.
 
 A joint missing in the input is predicted (``r_t``; held when no velocity is known)
 and flagged recovered. Units: metres, seconds.
@@ -178,6 +180,10 @@ class LivePath:
         self.rate_hz = float(rate_hz)
         self.levels = tree_levels(bones, n_joints)
         self._tree = [np.concatenate(self.levels)] if self.levels else []  # all tree bones at once
+        tree = self._tree[0] if self._tree else np.zeros((0, 2), dtype=np.intp)
+        self._tree_pc = np.ascontiguousarray(tree[:, 0]), np.ascontiguousarray(tree[:, 1])
+        self._fused = config.gate == "theil_sen" and config.filter == "one_euro" and not config.propagate
+        self._params = (config.min_cutoff, config.beta, config.d_cutoff, config.gate_min_m, config.gate_k)
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
         self.reset()
@@ -268,6 +274,8 @@ class LivePath:
         joints that were missing or whose sample the gate replaced.
         """
         cfg = self.cfg
+        if self._fused and kernels.COMPILED:  # the default chain in one compiled call, same values
+            return self._step_compiled(x, valid, t)
         valid3 = np.broadcast_to(valid[:, None], x.shape)
         if cfg.gate == "theil_sen":
             return self._step_theil_sen(x, valid, valid3, t)
@@ -303,6 +311,24 @@ class LivePath:
             self._g[1:, reacquired] = x[reacquired]
             self._scale[reacquired] = np.nan
         return self._finish(g, outlier, valid, t)
+
+    def _step_compiled(self, x, valid, t):
+        """:meth:`step` for the default chain via :func:`streamfix.core.kernels.live_step`;
+        the state is the numpy path's own (the same arrays), so either may take the next frame."""
+        f = self._filter
+        if f._x is None:  # the filter's state before its first frame, as OneEuroFilter.step makes it
+            J = self.n_joints
+            f._x, f._dx, f._t, f._seen = np.full((J, 3), np.nan), np.zeros((J, 3)), np.zeros(J), np.zeros(J, dtype=bool)
+        f._frame += 1
+        tree_p, tree_c = self._tree_pc
+        y, outlier, n_gated = kernels.live_step(
+            x, valid, t, self._hist, self._u, self._pi, self._pj, self._scale, self._last,
+            (f._x, f._dx, f._t, f._seen), self._params, tree_p, tree_c, self._child_len,
+            bool(self.cfg.project and self.levels),
+        )
+        self.gated_total += n_gated
+        self._last = y.copy()
+        return y, ~valid | outlier.any(axis=1)
 
     def _step_theil_sen(self, x, valid, valid3, t):
         """Gate against the robust line through the raw history (no feedback of gated values)."""

@@ -1,0 +1,164 @@
+"""What the streaming engine keeps per tracked body and per stream: the raw ring, the
+overlap-add accumulators, the bone-length memories and clean history of a body, a frame
+waiting for its bodies' clean values, and the job one window becomes."""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from ..frames import BodyFrame
+from ..skeletons import Skeleton
+from .config import EngineConfig
+from .live import LivePath
+from .ring import RingBuffer
+
+__all__ = [
+    "Body", "Job", "PendingFrame", "StreamState", "hop_phase", "output_confidence",
+    "BONE_HISTORY_S", "BONE_MEMORY_S", "BONE_SUPPORT_FRAMES", "BONE_SUPPORT_TOL_M", "BONE_OWN_SUPPORT_S",
+    "HISTORY_S", "RECOVERED_CONFIDENCE",
+]
+
+BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-window estimates
+BONE_MEMORY_S = 10.0  # clean output the bone-length median runs over
+BONE_SUPPORT_FRAMES = 4  # raw samples that must agree with a bone's mode before it is trusted
+BONE_SUPPORT_TOL_M = 0.005  # ... to within this (m)
+BONE_OWN_SUPPORT_S = 1.0  # tracked samples a bone needs to keep its own length (else inferred ones, the mirror's)
+BONE_PEAK_SHARE = 0.1  # share of a bone's raw samples that must lie within BONE_SUPPORT_TOL_M of its mode
+GUESSED_SHARE_POOLED = (0.02, 0.1)  # share of a bone's samples with an inferred end: from the first, pooling with
+# its mirror begins; from the second, the pair shares one length (symmetric_lengths)
+HISTORY_S = 10.0
+"""Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
+solvers with ``wants_history`` (PCA gap filling trains on it)."""
+RECOVERED_CONFIDENCE = 0.5
+"""Confidence the engine gives a joint it recovered (protocol/SPEC.md: "its confidence is
+the service's estimate"): the sensor's own value for a guessed joint (inferred)."""
+
+
+def output_confidence(pos: np.ndarray, conf_in: np.ndarray | None, recovered: np.ndarray) -> np.ndarray:
+    """Per-joint output confidence: the sensor's for observed joints,
+    :data:`RECOVERED_CONFIDENCE` for recovered ones, 0 where there is no position."""
+    finite = np.isfinite(pos).all(axis=1)
+    base = np.zeros(len(pos)) if conf_in is None else np.asarray(conf_in, dtype=np.float64)
+    return np.where(finite, np.where(recovered, RECOVERED_CONFIDENCE, base), 0.0)
+
+
+class Job:
+    """One window to solve for one body: frames [start, end) of its timeline."""
+
+    __slots__ = (
+        "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
+        "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final", "history",
+    )
+
+    def __init__(self, body: "Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
+        self.body = body
+        self.start, self.end = start, end
+        self.positions, self.confidence = positions, confidence
+        self.bone_lengths = bone_lengths
+        self.iterations = iterations
+        self.status = "pending"  # pending -> done | skipped | abandoned
+        self.result_pos = self.result_rec = None
+        self.solve_s = 0.0
+        self.n_iter = 0
+        self.converged = False
+        self.error: str | None = None
+        self.final = final
+        self.history: np.ndarray | None = None
+
+
+def hop_phase(ordinal: int, hop: int) -> int:
+    """Frames (0 <= p < hop) by which the ``ordinal``-th body's windows are offset.
+
+    Bodies that appear together would otherwise all schedule their windows on the same
+    frame, and the worker solves them one after another: with 12 bodies the last
+    waited 12 solves (clean p99 ~250 ms beyond the lookahead in bench_service). The
+    golden-ratio sequence spreads any number of bodies evenly over the hop. The
+    first body gets 0, so a single body's output is unchanged. Only the second window
+    comes early (its hop is shorter), so every frame is still covered (H <= L + 1).
+    """
+    return int(((ordinal * 0.6180339887498949) % 1.0) * hop)
+
+
+class Body:
+    """Everything the engine keeps about one tracked body of one stream."""
+
+    def __init__(self, body_id: int, g0: int, cfg: EngineConfig, skeleton: Skeleton, backlog: int, prior_lengths=None):
+        J = skeleton.n_joints
+        B = skeleton.n_bones
+        self.body_id = body_id
+        self.g0 = g0  # stream frame index of timeline frame 0
+        self.ring = RingBuffer(cfg.window, J)
+        cap = cfg.window + backlog + cfg.hop_limit + 2
+        self.cap = cap
+        # per-frame output accumulators, indexed by timeline frame % cap
+        self.mean = np.zeros((cap, J, 3))
+        self.den = np.zeros((cap, J))
+        self.recw = np.zeros((cap, J))
+        self.live = np.full((cap, J, 3), np.nan)
+        self.live_rec = np.zeros((cap, J), dtype=bool)
+        self.conf = np.zeros((cap, J))
+        self.valid = np.zeros((cap, J), dtype=bool)
+        self.present = np.zeros(cap, dtype=bool)
+        self.count = 0  # frames in the timeline
+        self.final_upto = 0  # next frame to finalise
+        self.next_end = cfg.lookahead + 1  # end of the next window to schedule
+        self.phase = 0  # frames the second window comes early by (spreads bodies over the hop)
+        self.last_scheduled_end = 0
+        self.last_processed_end = 0
+        self.last_present = -1
+        self.absent = 0  # consecutive absent frames
+        self.jobs: deque[Job] = deque()
+        self.ending = False
+        # worker-owned warm-start state
+        self.solver_state = None
+        self.solver_state_end = -1
+        # bone lengths sampled from the body's clean output (median -> clean_lengths)
+        self.clean_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
+        self.clean_bones_n = 0
+        self.clean_pending: list[np.ndarray] = []  # clean frames not yet in clean_bones (< one hop)
+        self.clean_lengths: np.ndarray | None = None
+        # per-frame bone lengths of the raw input where both ends are tracked (ring, NaN = none)
+        self.raw_bones = np.full((max(1, int(round(BONE_MEMORY_S * cfg.rate_hz))), B), np.nan)
+        self.raw_bones_seen = np.full_like(self.raw_bones, np.nan)  # the same, inferred samples too
+        self.raw_bones_end = 0  # absolute frame index up to which raw_bones is filled
+        self.prior_lengths = prior_lengths
+        self.live_path: LivePath | None = None
+        # the body's recent clean output for history-trained solvers (ring, oldest first on read)
+        self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
+        self.hist_n = 0
+
+    def history(self) -> np.ndarray:
+        """``(T_h, J, 3)`` copy of the kept clean history, oldest frame first."""
+        n, cap = self.hist_n, len(self.hist)
+        if n <= cap:
+            return self.hist[:n].copy()
+        k = n % cap
+        return np.concatenate([self.hist[k:], self.hist[:k]])
+
+
+class PendingFrame:
+    """A stream frame awaiting the clean values of its bodies."""
+
+    __slots__ = ("seq", "time_ns", "filled", "order", "slots", "missing")
+
+    def __init__(self, seq: int, time_ns: int, filled: bool, order: list[int]):
+        self.seq, self.time_ns, self.filled = seq, time_ns, filled
+        self.order = order
+        self.slots: dict[int, BodyFrame] = {}
+        self.missing = len(order)
+
+
+class StreamState:
+    def __init__(self, stream_id: str, seq0: int):
+        self.stream_id = stream_id
+        self.seq0 = seq0
+        self.g = -1  # index of the newest stream frame
+        self.last_in_seq: int | None = None
+        self.last_time_ns: int | None = None
+        self.bodies: dict[int, Body] = {}  # active bodies
+        self.ending: list[Body] = []  # bodies that left, finishing their last window
+        self.last_present: list[int] = []  # body ids of the newest real frame
+        self.pending: dict[int, PendingFrame] = {}
+        self.emit_g = 0
+        self.retired: dict[int, np.ndarray | None] = {}

@@ -1,0 +1,117 @@
+"""Streaming engine settings: window, hop and lookahead (frames or seconds), the live path's
+settings and the degradation, body-timeout and dropped-frame policies (see
+:mod:`streamfix.streaming.engine` for what each does)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .live import LiveConfig
+
+__all__ = ["EngineConfig", "DEFAULT_WINDOW_S", "DEFAULT_LOOKAHEAD_S", "DEFAULT_HOP_S"]
+
+DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
+DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean latency)
+DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """Streaming engine settings (frames, seconds, Hz).
+
+    window W, hop H, lookahead L: frames, ``1 <= H <= L + 1 <= W``; the clean output's
+    latency is ``L / rate_hz`` s plus compute. Left None, they follow the defaults in
+    seconds (W 2 s, H 1/3 s, L 0.5 s) at ``rate_hz``: 60/10/15 frames at 30 Hz. rate_hz: nominal sensor rate (drop
+    detection, filters). live: the live path's settings. max_iterations: solver
+    iteration cap per window (None = the solver's default). solver_config: passed as
+    ``config=`` to the window solver (None = its default). bone_lengths: fixed
+    ``(B,)`` bone lengths in metres (None = estimated robustly per body).
+    degrade: allow degradation in threaded mode. degraded_iterations: iterations at
+    level 1 (None = half of max_iterations, or 10 if that is None). max_hop: hop at the
+    deepest level (None = W // 2). max_pending_windows: windows queued per tracked body beyond which
+    new windows are skipped. max_clean_delay_s: how long beyond the lookahead a frame may
+    wait for a stalled window before it is abandoned (at most ``8 W`` frames).
+    recover_after: healthy windows
+    before recovering a level. body_timeout_s: grace period of an absent body.
+    fill_drops: synthesise dropped frames. drop_gap_factor: a timestamp gap above this
+    many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
+    threaded: solve windows in a worker thread (the service's mode). lookahead_s: the
+    lookahead in seconds instead of frames (rounded at ``rate_hz``; wins if given).
+    live_anchor: re-anchor the live path's 'predict' gate on each solved window's newest
+    frames when the solution is current (the live output is "corrected by the last
+    solved window"; it stays causal). Off by default: the window's newest frames have no
+    lookahead and measured worse than the Theil-Sen gate alone.
+    live_output: run the live path and emit ``live`` frames. False (offline cleaning,
+    which keeps only ``clean``) skips the live path's per-frame work; ``clean`` is
+    unchanged except for a joint that no solved window gives a value (a window that
+    failed or was skipped), which is then NaN and recovered instead of the live value;
+    ``metrics()['joints_live_fallback']`` counts such joint-frames (the offline runner
+    re-runs with the live path when it is not 0).
+    """
+
+    window: int | None = None
+    hop: int | None = None
+    lookahead: int | None = None
+    rate_hz: float = 30.0
+    live: LiveConfig = field(default_factory=LiveConfig)
+    max_iterations: int | None = None
+    solver_config: Any = None
+    bone_lengths: tuple[float, ...] | None = None
+    degrade: bool = True
+    degraded_iterations: int | None = None
+    max_hop: int | None = None
+    max_pending_windows: int = 4
+    max_clean_delay_s: float = 2.0
+    recover_after: int = 8
+    body_timeout_s: float = 1.0
+    fill_drops: bool = True
+    drop_gap_factor: float = 1.5
+    max_fill_s: float = 1.0
+    threaded: bool = False
+    lookahead_s: float | None = None
+    live_anchor: bool = False
+    live_output: bool = True
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError(f"rate_hz must be a positive number, got {self.rate_hz}")
+        if self.lookahead_s is not None:  # seconds win over frames
+            if not self.lookahead_s >= 0:
+                raise ValueError(f"lookahead_s must be >= 0 s, got {self.lookahead_s}")
+            object.__setattr__(self, "lookahead", int(round(self.lookahead_s * self.rate_hz)))
+            object.__setattr__(self, "lookahead_s", None)
+        # frame counts left unset follow the defaults in seconds at this rate
+        for name, seconds in (("window", DEFAULT_WINDOW_S), ("lookahead", DEFAULT_LOOKAHEAD_S), ("hop", DEFAULT_HOP_S)):
+            if getattr(self, name) is None:
+                n = max(1, int(round(seconds * self.rate_hz)))
+                if name == "lookahead":
+                    n = min(n, self.window - 1)
+                if name == "hop":
+                    n = min(n, self.lookahead + 1)
+                object.__setattr__(self, name, n)
+        W, H, L = self.window, self.hop, self.lookahead
+        if W < 4:
+            raise ValueError(f"window must be >= 4 frames (typically 50-300), got {W}")
+        if not 0 <= L <= W - 1:
+            raise ValueError(f"lookahead must be in 0..window-1 = 0..{W - 1} frames, got {L}")
+        if not 1 <= H <= L + 1:
+            raise ValueError(f"hop must be in 1..lookahead+1 = 1..{L + 1} frames, got {H}")
+        if self.max_hop is not None and not H <= self.max_hop <= W:
+            raise ValueError(f"max_hop must be in hop..window = {H}..{W}, got {self.max_hop}")
+        if self.max_iterations is not None and self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+        if self.drop_gap_factor <= 1.0:
+            raise ValueError(f"drop_gap_factor must be > 1 frame period, got {self.drop_gap_factor}")
+        if self.max_pending_windows < 1:
+            raise ValueError(f"max_pending_windows must be >= 1, got {self.max_pending_windows}")
+
+    @property
+    def latency_s(self) -> float:
+        """Fixed latency of the clean output before compute (the lookahead), seconds."""
+        return self.lookahead / self.rate_hz
+
+    @property
+    def hop_limit(self) -> int:
+        return self.max_hop if self.max_hop is not None else max(self.hop, self.window // 2)

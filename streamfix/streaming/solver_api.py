@@ -1,0 +1,30 @@
+"""What the streaming engine asks of a window solver: its call signature
+(:data:`WindowSolver`) and what it returns (:class:`WindowOutput`). Kept apart from the
+engine so solvers (:mod:`streamfix.streaming.bridging`) need not import the engine."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = ["WindowOutput", "WindowSolver"]
+
+WindowSolver = Callable[..., Any]
+"""``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,
+rate_hz, config=..., state=None, init=None)`` returning an object with ``.positions
+(T,J,3)``, ``.recovered (T,J)``, ``.state``, ``.iterations``, ``.converged`` -- the
+signature of :func:`streamfix.core.pipeline.clean_window`."""
+
+
+@dataclass
+class WindowOutput:
+    """What a window solver returns (the fields the engine uses)."""
+
+    positions: np.ndarray
+    recovered: np.ndarray
+    state: Any = None
+    iterations: int = 0
+    converged: bool = True
+    info: dict = field(default_factory=dict)
+    bridged: dict = field(default_factory=dict)  # source -> joint-frames filled before the solver

@@ -1,0 +1,95 @@
+"""The window solvers the engine ships: the default (long-gap bridging in front of
+``streamfix.core.pipeline.clean_window``) and the ALM adapter, and how the engine reads a
+solver's wishes (``wants_history``, ``wants_skeleton``) and caps its iterations."""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from .solver_api import WindowOutput, WindowSolver
+
+__all__ = ["alm_window_solver", "default_window_solver", "wants", "with_max_iterations"]
+
+
+def alm_window_solver(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray | None,
+    rate_hz: float,
+    config: Any = None,
+    state: Any = None,
+    init: np.ndarray | None = None,
+) -> WindowOutput:
+    """Adapter: :func:`streamfix.core.alm.solve` (Yang et al. Algorithm 1) as a window solver.
+
+    ``config`` is a :class:`~streamfix.core.alm.SolverParams` (None = defaults).
+    ``recovered`` = unobserved, or observed but moved by the sparse term E by > 2 cm.
+    """
+    from ..core.alm import SolverParams, solve
+
+    params = config if config is not None else SolverParams()
+    observed = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
+    res = solve(positions, observed, bones, bone_lengths, params, init=init, state=state)
+    err = np.linalg.norm(np.nan_to_num(res.sparse_error), axis=2)
+    recovered = ~observed | (err > 0.02)
+    return WindowOutput(res.positions, recovered, res.state, int(res.iterations), bool(res.converged))
+
+
+def default_window_solver() -> WindowSolver:
+    """``streamfix.core.pipeline.clean_window`` behind the long-gap bridge
+    (:class:`~streamfix.streaming.bridging.BridgingWindowSolver`: joints missing for
+    >= 1/3 of a window and blackouts are filled from PCA on the body's clean history or
+    the learned prior first), else the ALM adapter."""
+    try:
+        from ..core.pipeline import clean_window  # type: ignore[attr-defined]  # noqa: F401
+    except ImportError:
+        return alm_window_solver
+    from .bridging import BridgingWindowSolver
+
+    return BridgingWindowSolver()
+
+
+def wants(solver: WindowSolver, flag: str) -> bool:
+    """True when the solver declares ``flag`` (``wants_history``: takes ``history=``;
+    ``wants_skeleton``: takes ``skeleton=``), itself or one wrapper level (``.solver``)."""
+    if getattr(solver, flag, False):
+        return True
+    inner = getattr(solver, "solver", None)
+    return inner is not None and inner is not solver and bool(getattr(inner, flag, False))
+
+
+def with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any:
+    """A copy of a solver config with its iteration cap set to ``n`` (if it has one)."""
+    if n is None:
+        return config
+    solver = getattr(solver, "base_solver", solver)  # a wrapping solver: its base's config
+    if config is None:
+        if solver is alm_window_solver:
+            from ..core.alm import SolverParams
+
+            return SolverParams(max_iter=n)
+        try:
+            import inspect
+
+            default = inspect.signature(solver).parameters["config"].default
+        except (KeyError, TypeError, ValueError):
+            return None
+        if default is inspect.Parameter.empty or default is None:
+            return None
+        config = default
+    if not dataclasses.is_dataclass(config):
+        return config
+    names = {f.name for f in dataclasses.fields(config)}
+    for key in ("max_iterations", "max_iter", "solver_max_iter", "iterations"):
+        if key in names:
+            return dataclasses.replace(config, **{key: n})
+    for key in ("solver", "params", "solver_params", "alm"):
+        if key in names:
+            inner = getattr(config, key)
+            new_inner = with_max_iterations(inner, n, solver) if inner is not None else None
+            if new_inner is not inner:
+                return dataclasses.replace(config, **{key: new_inner})
+    return config
