@@ -61,3 +61,20 @@ def test_symmetric_lengths_pools_guessed_limbs_with_their_mirror():
     both = (0.057 * 200 + 0.078 * 100) / 300
     assert abs(got[1] - both) < 1e-12 and abs(got[2] - both) < 1e-12  # the pair shares one length
     assert got[0] == 0.40 and got[3] == 0.25 and sup[1] == sup[2] == 300
+
+
+def test_cluster_median_equals_the_nanmedian_of_the_cluster():
+    import warnings
+
+    from streamfix.core.isometry import _cluster_median
+
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        T, B = int(rng.integers(1, 60)), int(rng.integers(1, 6))
+        values = rng.normal(0.3, 0.05, (T, B))
+        values[rng.random((T, B)) < 0.3] = np.nan
+        centre, radius = rng.normal(0.3, 0.05, B), float(rng.uniform(0.001, 0.1))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an empty cluster: NaN
+            want = np.nanmedian(np.where(np.abs(values - centre) <= radius, values, np.nan), axis=0)
+        np.testing.assert_allclose(_cluster_median(values, centre, radius), want, equal_nan=True)

@@ -12,7 +12,6 @@ Eq. (20) splits into T independent systems, solved here in one batched call.
 """
 from __future__ import annotations
 
-import warnings
 from functools import lru_cache
 
 import numpy as np
@@ -86,6 +85,21 @@ def _shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
     return out
 
 
+def _cluster_median(values: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Per column of ``values`` ``(T, B)`` (NaN = none), the median of the values within
+    ``radius`` of ``centre`` ``(B,)``; NaN where there are none. One sort for all columns:
+    the cluster is a contiguous run of each sorted column (NaN sort last)."""
+    v = np.sort(values, axis=0)
+    with np.errstate(invalid="ignore"):
+        lo = (v < (centre - radius)[None, :]).sum(axis=0)
+        hi = (v <= (centre + radius)[None, :]).sum(axis=0)
+    n = hi - lo
+    last = v.shape[0] - 1
+    a = np.take_along_axis(v, np.minimum(lo + np.maximum(n - 1, 0) // 2, last)[None, :], axis=0)[0]
+    b = np.take_along_axis(v, np.minimum(lo + n // 2, last)[None, :], axis=0)[0]
+    return np.where(n > 0, 0.5 * (a + b), np.nan)
+
+
 def length_mode_with_support(
     samples: np.ndarray, fraction: float = 0.1, tolerance_m: float = 0.005, refine_m: float | None = 0.02
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -111,11 +125,8 @@ def length_mode_with_support(
     """
     values = np.asarray(samples, dtype=np.float64)
     lengths = _shorth_mode(values, fraction)
-    if refine_m is not None and values.size:
-        cluster = np.where(np.abs(values - lengths[None, :]) <= refine_m, values, np.nan)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a bone without samples
-            refined = np.nanmedian(cluster, axis=0)
+    if refine_m is not None and values.size and values.ndim == 2:
+        refined = _cluster_median(values, lengths, float(refine_m))
         lengths = np.where(np.isfinite(refined), refined, lengths)
     with np.errstate(invalid="ignore"):
         support = (np.abs(values - lengths[None, :]) <= tolerance_m).sum(axis=0)
