@@ -236,8 +236,10 @@ def test_fill_of_a_moving_arm_still_beats_hold_and_low_rank(shared_data):
           f"low rank alone {e_alone * 100:.1f}")
     # the one-model canonical prior (5 layouts, 89 min of data) fills this arm about 3 cm
     # worse than the earlier Kinect-v2-only model did (20.8 vs 17.5 cm): still clearly
-    # better than holding, interpolating or low rank alone (28.3 / 24.3 cm)
-    assert e < 0.9 * hold and e < 0.9 * e_alone and e < 0.9 * lin
+    # better than holding or interpolating (28.3 / 24.3 cm). Against low rank alone the
+    # margin depends on the solver's warm start at the gap's first windows (a dropped frame
+    # just before it, now bridged without the solver: 22.3 cm, 20.1 with it): better, by less
+    assert e < 0.9 * hold and e < 0.9 * lin and e < 0.95 * e_alone
 
 
 @pytest.mark.parametrize("take, joints, a, b", [

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 __all__ = ["interpolate_linear", "interpolate_spline", "spline_operator", "interpolate", "observed_mask",
-           "neighbour_observations", "continuity_baseline"]
+           "neighbour_observations", "continuity_baseline", "missing_run_lengths"]
 
 
 def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
@@ -50,6 +50,21 @@ def continuity_baseline(positions: np.ndarray, observed: np.ndarray) -> tuple[np
     w = ((np.arange(T)[:, None] - prev) / np.maximum(nxt - prev, 1))[..., None]
     base = np.where((hp & hn)[..., None], xp + w * (xn - xp), np.where(hp[..., None], xp, xn))
     return base, prev, nxt
+
+
+def missing_run_lengths(observed: np.ndarray) -> np.ndarray:
+    """``(T, J)`` (or ``(T,)``) int: for each missing sample the length of the run of
+    consecutive missing frames it sits in (0 where observed)."""
+    obs = np.asarray(observed, dtype=bool)
+    squeeze = obs.ndim == 1
+    if squeeze:
+        obs = obs[:, None]
+    n = obs.shape[0]
+    idx = np.arange(n)[:, None]
+    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
+    nxt = np.minimum.accumulate(np.where(obs, idx, n)[::-1], axis=0)[::-1]
+    run = np.where(obs, 0, nxt - prev - 1)
+    return run[:, 0] if squeeze else run
 
 
 def interpolate_linear(

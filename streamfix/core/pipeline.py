@@ -86,7 +86,7 @@ from scipy.ndimage import correlate1d
 
 from . import alm, kernels
 from .filters import median_savgol, running_median
-from .interpolate import interpolate_linear
+from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
 
 __all__ = ["PipelineConfig", "WindowResult", "clean_window", "robust_temporal_fit"]
@@ -112,6 +112,7 @@ class PipelineConfig:
     solver_max_iter: int = 300
     solver_tol: float = 1e-5
     boundary_correction: bool = True
+    short_gap_s: float = 0.1  # every gap at most this long (s): local quadratic across it, no solver
     # stage 3: smoothing matched to the noise level and rate
     smooth_floor_m: float = 1e-4
     white_noise_ratio: float = 1.8  # at or below: smooth fully
@@ -339,6 +340,34 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
         dev = med(np.abs(lengths[:, keep] - typical[keep]), axis=0)
     dev = dev[np.isfinite(dev)]
     return float(dev.mean()) if dev.size else 0.0
+
+
+# --------------------------------------------------------------------------- stage 4
+def fill_short_gaps(positions: np.ndarray, observed: np.ndarray, max_gap_frames: int) -> np.ndarray:
+    """Fill gaps of at most ``max_gap_frames`` frames by the weighted local quadratic across them.
+
+    ``positions`` ``(T, J, 3)`` m (values at missing joint-frames ignored), ``observed``
+    ``(T, J)``. A gap with samples on both sides takes the local quadratic through its
+    neighbours (half-width ``max_gap_frames + 1``: a full gap still has samples on both
+    sides of the kernel); one open at the window's edge holds the nearest sample. Why: the
+    gaps a stream has most often are single dropped frames the engine synthesised, every
+    joint missing for 1/30 s; solving the whole window's low-rank model for them cost a
+    streamfix clean of a Kinect recording 40 % of its time, and across one or two frames
+    the neighbours' curvature says more than the other joints do.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = np.asarray(observed, dtype=bool)
+    n_frames = x.shape[0]
+    w = np.repeat(obs.astype(np.float64), 3, axis=1)
+    y = np.where(w > 0, x.reshape(n_frames, -1), 0.0)
+    fit, _ = _fit_local_poly(y, w, max(2, int(max_gap_frames) + 1))
+    held, _ = interpolate_linear(np.where(obs[..., None], x, np.nan), obs)
+    idx = np.arange(n_frames)[:, None]
+    before = np.maximum.accumulate(np.where(obs, idx, -1), axis=0) >= 0
+    after = np.minimum.accumulate(np.where(obs, idx, n_frames)[::-1], axis=0)[::-1] < n_frames
+    inside = (before & after)[..., None]
+    out = np.where(inside, fit.reshape(x.shape), held)
+    return np.where(obs[..., None], x, out)
 
 
 # --------------------------------------------------------------------------- stage 5
@@ -600,12 +629,21 @@ def clean_window(
         info["smooth_half_width_frames"] = hs
         info["smooth_share"] = share
 
-    # stage 4: missing joint-frames from the solver (or linear interpolation)
+    # stage 4: missing joint-frames from the solver (or interpolation: short gaps only, or
+    # no solver)
     missing = ~obs
     iterations, converged, out_state = 0, True, None
     if missing.any():
         base = np.where(obs3, cleaned, np.nan)
-        if cfg.use_solver:
+        short = max(0, int(round(cfg.short_gap_s * rate_hz)))
+        # short and closed: a joint that has just vanished at the window's newest frames is
+        # the solver's (the other joints say where it went; its neighbours in time do not)
+        closed = obs[0].all() and obs[-1].all()
+        if cfg.use_solver and closed and missing_run_lengths(obs).max() <= short:
+            filled = fill_short_gaps(cleaned, obs, short)
+            info["short_gaps_only"] = True
+            out_state = state  # the solver did not run: its warm start carries on to the next window
+        elif cfg.use_solver:
             params = alm.SolverParams(mode=cfg.solver_mode, max_iter=cfg.solver_max_iter, tol=cfg.solver_tol)
             res = alm.solve(base, obs, bones, bone_lengths, params, init=init, state=state)
             filled = res.positions
@@ -615,6 +653,14 @@ def clean_window(
                 # linearly across the gap, so a filled run meets its neighbours without a jump
                 offset, _ = interpolate_linear(np.where(obs3, cleaned - filled, np.nan), obs)
                 filled = filled + np.nan_to_num(offset)
+            blackout = ~obs.any(axis=1)
+            if blackout.any():
+                # a frame with no joint observed is a missing column of the low-rank model,
+                # which nothing in it can recover (the solve left such frames 0.2-0.5 m off);
+                # time can: each joint's cubic spline through its observed frames
+                temporal, _ = interpolate_spline(base, obs)
+                filled[blackout] = temporal[blackout]
+                info["blackout_frames"] = int(blackout.sum())
         else:
             filled, _ = interpolate_linear(base, obs)
         cleaned = np.where(obs3, cleaned, filled)

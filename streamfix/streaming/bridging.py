@@ -86,6 +86,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.interpolate import missing_run_lengths
 from ..skeletons import Skeleton
 from .solver_api import WindowOutput
 
@@ -146,21 +147,6 @@ def long_gap_frames(n_frames: int) -> int:
 def open_gap_frames(n_frames: int) -> int:
     """Shortest missing run (frames) still open at the window's end that is bridged."""
     return max(LONG_GAP_MIN, int(np.ceil(n_frames * OPEN_GAP_FRACTION)))
-
-
-def missing_run_lengths(observed: np.ndarray) -> np.ndarray:
-    """``(T, J)`` (or ``(T,)``) int: for each missing sample the length of the run of
-    consecutive missing frames it sits in (0 where observed)."""
-    obs = np.asarray(observed, dtype=bool)
-    squeeze = obs.ndim == 1
-    if squeeze:
-        obs = obs[:, None]
-    n = obs.shape[0]
-    idx = np.arange(n)[:, None]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, n)[::-1], axis=0)[::-1]
-    run = np.where(obs, 0, nxt - prev - 1)
-    return run[:, 0] if squeeze else run
 
 
 def long_missing_mask(observed: np.ndarray, n_frames: int | None = None) -> np.ndarray:
