@@ -20,6 +20,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from . import kernels
+from .robust_stats import nanmedian
 
 __all__ = [
     "bone_vectors",
@@ -87,17 +88,10 @@ def _shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
 
 def _cluster_median(values: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
     """Per column of ``values`` ``(T, B)`` (NaN = none), the median of the values within
-    ``radius`` of ``centre`` ``(B,)``; NaN where there are none. One sort for all columns:
-    the cluster is a contiguous run of each sorted column (NaN sort last)."""
-    v = np.sort(values, axis=0)
+    ``radius`` of ``centre`` ``(B,)``; NaN where there are none."""
     with np.errstate(invalid="ignore"):
-        lo = (v < (centre - radius)[None, :]).sum(axis=0)
-        hi = (v <= (centre + radius)[None, :]).sum(axis=0)
-    n = hi - lo
-    last = v.shape[0] - 1
-    a = np.take_along_axis(v, np.minimum(lo + np.maximum(n - 1, 0) // 2, last)[None, :], axis=0)[0]
-    b = np.take_along_axis(v, np.minimum(lo + n // 2, last)[None, :], axis=0)[0]
-    return np.where(n > 0, 0.5 * (a + b), np.nan)
+        near = np.abs(values - centre[None, :]) <= radius
+    return nanmedian(np.where(near, values, np.nan), axis=0)
 
 
 def length_mode_with_support(

@@ -88,6 +88,7 @@ from . import alm, kernels
 from .filters import median_savgol, running_median
 from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
+from .robust_stats import nanmedian
 
 __all__ = ["PipelineConfig", "WindowResult", "clean_window", "robust_temporal_fit"]
 
@@ -465,9 +466,7 @@ def joint_noise_scale(observed_positions: np.ndarray, estimate: np.ndarray, inli
     """
     resid = np.abs(np.where(inlier, np.asarray(observed_positions, dtype=np.float64) - estimate, np.nan))
     per_joint = resid.transpose(1, 0, 2).reshape(resid.shape[1], -1)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        scale = 1.4826 * np.nanmedian(per_joint, axis=1)
+    scale = 1.4826 * nanmedian(per_joint, axis=1)
     return np.nan_to_num(scale, nan=0.0)
 
 
