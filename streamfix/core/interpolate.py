@@ -57,13 +57,8 @@ def missing_run_lengths(observed: np.ndarray) -> np.ndarray:
     consecutive missing frames it sits in (0 where observed)."""
     obs = np.asarray(observed, dtype=bool)
     squeeze = obs.ndim == 1
-    if squeeze:
-        obs = obs[:, None]
-    n = obs.shape[0]
-    idx = np.arange(n)[:, None]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, n)[::-1], axis=0)[::-1]
-    run = np.where(obs, 0, nxt - prev - 1)
+    prev, nxt = neighbour_observations(obs[:, None] if squeeze else obs)
+    run = np.where(obs[:, None] if squeeze else obs, 0, nxt - prev - 1)
     return run[:, 0] if squeeze else run
 
 

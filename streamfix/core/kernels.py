@@ -46,7 +46,7 @@ import os
 import numpy as np
 
 __all__ = [
-    "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "project_bone_lengths_pbd",
+    "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
     "shorth_mode", "live_step", "warm_up",
 ]
@@ -157,17 +157,9 @@ def _local_poly_loop(y, w, taps, fit, support, pivot_rtol):  # pragma: no cover 
             gap1[c] = d1 - pivot_rtol * m11
             gap2[c] = d2 - pivot_rtol * m22
         for c in range(n_ch):
-            if not (gap1[c] >= 0.0 and gap2[c] >= 0.0):  # a pivot below its share (or NaN)
-                m00 = s0[c] + 1e-12
-                m11 = s2[c] + 1e-9
-                m22 = s4[c] + 1e-9
-                l10 = s1[c] / m00
-                l20 = s2[c] / m00
-                d1 = m11 - l10 * s1[c]
-                l21 = (s3[c] - l20 * s1[c]) / d1
-                d2 = m22 - l20 * s2[c] - l21 * l21 * d1
-                if d1 < pivot_rtol * m11 or d2 < pivot_rtol * m22:
-                    row[c] = _solve3_first(m00, s1[c], s2[c], m11, s3[c], m22, r0[c], r1[c], r2[c])
+            if gap1[c] < 0.0 or gap2[c] < 0.0:  # a pivot below its share (NaN: left as it is)
+                row[c] = _solve3_first(s0[c] + 1e-12, s1[c], s2[c], s2[c] + 1e-9, s3[c], s4[c] + 1e-9,
+                                       r0[c], r1[c], r2[c])
             fit[t, c] = row[c]
             support[t, c] = s0[c]
 
@@ -343,6 +335,30 @@ def _pbd_loop(x, bi, bj, target, share_i, inv_degree, iterations):  # pragma: no
 _pbd_compiled = _jit(_pbd_loop)
 
 
+def pbd_constraints(
+    shape: tuple[int, ...], bones: np.ndarray, bone_lengths: np.ndarray, inverse_mass: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The bone constraints of a Jacobi bone-length projection on positions of ``shape``
+    ``(T, J, 3)``, shared by the numpy reference and the compiled loop.
+
+    Returns ``(i, j, lengths, share_i, degree)``: the bones with a finite target length
+    (parent ``i``, child ``j``, contiguous), their lengths (m), each bone's share of its
+    length error taken by ``i`` ``(T, B)`` (its inverse mass over the pair's; 0.5 when both
+    are 0) and each joint's number of bones ``(J,)``.
+    """
+    n_frames, n_joints = shape[0], shape[1]
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    lengths = np.asarray(bone_lengths, dtype=np.float64)
+    keep = np.isfinite(lengths)
+    b, lengths = b[keep], np.ascontiguousarray(lengths[keep])
+    im = np.ones((n_frames, n_joints)) if inverse_mass is None else np.asarray(inverse_mass, dtype=np.float64)
+    i, j = np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
+    wi, wj = im[:, i], im[:, j]
+    share_i = np.ascontiguousarray(np.where(wi + wj > 0, wi / np.maximum(wi + wj, 1e-12), 0.5))
+    degree = np.bincount(np.concatenate([i, j]), minlength=n_joints).astype(np.float64)
+    return i, j, lengths, share_i, degree
+
+
 def project_bone_lengths_pbd(
     positions: np.ndarray,
     bones: np.ndarray,
@@ -356,20 +372,10 @@ def project_bone_lengths_pbd(
     if _pbd_compiled is None:
         raise RuntimeError("streamfix.core.kernels.project_bone_lengths_pbd needs numba; use streamfix.core.pipeline's")
     x = np.array(positions, dtype=np.float64, order="C", copy=True)
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    lengths = np.asarray(bone_lengths, dtype=np.float64)
-    keep = np.isfinite(lengths)
-    b, lengths = b[keep], lengths[keep]
-    if len(b) == 0 or iterations <= 0 or not np.isfinite(x).all():
+    i, j, lengths, share_i, degree = pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
+    if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
-    n_frames, n_joints, _ = x.shape
-    im = np.ones((n_frames, n_joints)) if inverse_mass is None else np.asarray(inverse_mass, dtype=np.float64)
-    i, j = np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
-    wi, wj = im[:, i], im[:, j]
-    share_i = np.ascontiguousarray(np.where(wi + wj > 0, wi / np.maximum(wi + wj, 1e-12), 0.5))
-    degree = np.bincount(np.concatenate([i, j]), minlength=n_joints).astype(np.float64)
-    inv_degree = 1.0 / np.maximum(degree, 1.0)
-    _pbd_compiled(x, i, j, np.ascontiguousarray(lengths), share_i, inv_degree, int(iterations))
+    _pbd_compiled(x, i, j, lengths, share_i, 1.0 / np.maximum(degree, 1.0), int(iterations))
     return x
 
 

@@ -86,7 +86,7 @@ from scipy.ndimage import correlate1d
 
 from . import alm, kernels
 from .filters import median_savgol, running_median
-from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths
+from .interpolate import continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
 from .robust_stats import nanmedian
 
@@ -362,12 +362,10 @@ def fill_short_gaps(positions: np.ndarray, observed: np.ndarray, max_gap_frames:
     w = np.repeat(obs.astype(np.float64), 3, axis=1)
     y = np.where(w > 0, x.reshape(n_frames, -1), 0.0)
     fit, _ = _fit_local_poly(y, w, max(2, int(max_gap_frames) + 1))
-    held, _ = interpolate_linear(np.where(obs[..., None], x, np.nan), obs)
-    idx = np.arange(n_frames)[:, None]
-    before = np.maximum.accumulate(np.where(obs, idx, -1), axis=0) >= 0
-    after = np.minimum.accumulate(np.where(obs, idx, n_frames)[::-1], axis=0)[::-1] < n_frames
-    inside = (before & after)[..., None]
-    out = np.where(inside, fit.reshape(x.shape), held)
+    held, prev, nxt = continuity_baseline(x, obs)  # hold at an open edge
+    inside = (prev >= 0) & (nxt < n_frames)
+    out = np.where(inside[..., None], fit.reshape(x.shape), held)
+    out[(prev < 0) & (nxt >= n_frames)] = np.nan  # never observed in the window
     return np.where(obs[..., None], x, out)
 
 
@@ -416,21 +414,13 @@ def project_bone_lengths_pbd(
     bones; unconditionally stable (every step shortens each violated constraint).
     """
     x = np.asarray(positions, dtype=np.float64).copy()
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    lengths = np.asarray(bone_lengths, dtype=np.float64)
-    keep = np.isfinite(lengths)
-    b, lengths = b[keep], lengths[keep]
-    if len(b) == 0 or iterations <= 0 or not np.isfinite(x).all():
+    i, j, lengths, share_i, degree = kernels.pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
+    if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
     n_frames, n_joints, _ = x.shape
-    im = np.ones((n_frames, n_joints)) if inverse_mass is None else np.asarray(inverse_mass, dtype=np.float64)
-    i, j = b[:, 0], b[:, 1]
-    wi, wj = im[:, i], im[:, j]                                   # (T, B)
-    share_i = np.where(wi + wj > 0, wi / np.maximum(wi + wj, 1e-12), 0.5)
-    degree = np.bincount(np.concatenate([i, j]), minlength=n_joints).astype(np.float64)
-    rows = np.arange(len(b))
-    P = np.zeros((len(b), n_joints))
-    Q = np.zeros((len(b), n_joints))
+    rows = np.arange(len(i))
+    P = np.zeros((len(i), n_joints))
+    Q = np.zeros((len(i), n_joints))
     P[rows, i] = 1.0
     Q[rows, j] = 1.0
     P /= np.maximum(degree, 1.0)[None, :]  # scatter to joints and average over their bones
@@ -438,7 +428,7 @@ def project_bone_lengths_pbd(
     # joint-major layout (J, 3, T): each iteration is two row gathers, norms from three
     # contiguous (B, T) planes, and one matrix product scattering both bones' ends,
     # C = [-P^T, Q^T] (J, 2B)
-    n_bones = len(b)
+    n_bones = len(i)
     C = np.concatenate([-P.T, Q.T], axis=1)
     si = share_i.T[:, None, :]                                    # (B, 1, T)
     target = lengths[:, None]
