@@ -25,6 +25,8 @@ import warnings
 
 import numpy as np
 
+from .robust_stats import nanmedian
+
 __all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors", "seam_jitter",
            "inferred_bone_asymmetry"]
 
@@ -112,16 +114,13 @@ def inferred_bone_asymmetry(
         raise ValueError(f"mirror must be ({len(b)},), got {m.shape}")
     lengths = bone_lengths(x, b)                                   # (T, B)
     child_inf = inf[:, b[:, 1]]                                    # (T, B)
-    worst = float("nan")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        for k in np.flatnonzero((child_inf.sum(axis=0) >= min_frames) & (m != np.arange(len(b)))):
-            own = np.nanmedian(lengths[child_inf[:, k], k])
-            twin = np.nanmedian(lengths[child_inf[:, k], m[k]])
-            if np.isfinite(own) and np.isfinite(twin) and twin > 0:
-                rel = abs(own - twin) / twin
-                worst = rel if not np.isfinite(worst) else max(worst, rel)
-    return worst
+    judged = (child_inf.sum(axis=0) >= min_frames) & (m != np.arange(len(b)))
+    own = nanmedian(np.where(child_inf, lengths, np.nan), axis=0)
+    twin = nanmedian(np.where(child_inf, lengths[:, m], np.nan), axis=0)  # the mirror, same frames
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.abs(own - twin) / twin
+    rel = rel[judged & np.isfinite(rel) & (twin > 0)]
+    return float(rel.max()) if rel.size else float("nan")
 
 
 def gap_mae(pred: np.ndarray, truth: np.ndarray, missing: np.ndarray) -> float:

@@ -16,7 +16,7 @@ from .ring import RingBuffer
 __all__ = [
     "Body", "Job", "PendingFrame", "StreamState", "hop_phase", "output_confidence",
     "BONE_HISTORY_S", "BONE_MEMORY_S", "BONE_SUPPORT_FRAMES", "BONE_SUPPORT_TOL_M", "BONE_OWN_SUPPORT_S",
-    "HISTORY_S", "RECOVERED_CONFIDENCE",
+    "BONE_PEAK_SHARE", "GUESSED_SHARE_POOLED", "HISTORY_S", "RECOVERED_CONFIDENCE",
 ]
 
 BONE_HISTORY_S = 3.0  # clean output needed before its bone lengths replace per-window estimates
