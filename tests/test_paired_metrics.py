@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.core.reference_metrics import remove_mean_offset, second_difference_norm, velocity_xcorr
+from streamfix.core.reference_metrics import remove_mean_offset, second_difference_norm, slow_error_norm, velocity_xcorr
 from streamfix.core.rigid import fit_rigid, fit_rigid_with_offsets
 from streamfix.evaluation.paired import aggregate, body_region, handover_frames, score_take
 from streamfix.io.paired import PairedTake, find_takes, load_take
@@ -44,6 +44,22 @@ def test_lag_finds_a_known_delay(delay):
     lags, corr = velocity_xcorr(pred, ref, max_lag=8)
     assert lags[np.nanargmax(corr)] == delay
     assert np.nanmax(corr) == pytest.approx(1.0)
+
+
+def test_slow_error_keeps_slow_drift_and_drops_fast_jitter_and_offset():
+    """A constant offset (debiased away), a 0.5 Hz drift (kept) and 10 Hz jitter (removed) at 30 Hz."""
+    ref = _smooth_motion(T=300, J=4)
+    t = np.arange(300)[:, None, None] / 30.0
+    drift = 0.02 * np.sin(2 * np.pi * 0.5 * t) * np.array([1.0, 0.0, 0.0])
+    jitter = 0.02 * np.sin(2 * np.pi * 10.0 * t) * np.array([0.0, 1.0, 0.0])
+    pred = ref + 0.1 + drift + jitter
+    pred[40:45, 1] = np.nan  # a gap: NaN out, neighbours unaffected
+    slow = slow_error_norm(pred, ref, 30.0)
+    assert np.isnan(slow[40:45, 1]).all() and np.isfinite(slow[:40]).all()
+    inner = slow[30:-30, 0]  # away from the filter's ends
+    np.testing.assert_allclose(inner, np.abs(drift[30:-30, 0, 0]), atol=0.002)
+    # without the drift nothing slow is left: the jitter is above the cut-off
+    assert np.nanmax(slow_error_norm(ref + 0.1 + jitter, ref, 30.0)[30:-30]) < 0.002
 
 
 def test_second_difference_is_zero_on_a_line_and_nan_at_the_ends():

@@ -10,7 +10,7 @@ from streamfix.cli import main
 from streamfix.evaluation.paired import run_paired
 
 KEYS = ("mean_error_m", "debiased_mean_m", "debiased_p95_m", "jitter", "jitter_reference", "jitter_ratio",
-        "bone_cv", "seam_ratio")
+        "bone_cv", "seam_ratio", "debiased_slow_m")
 
 
 def test_cli_json_on_a_few_repetitions(capsys):
@@ -36,6 +36,9 @@ def test_cli_json_on_a_few_repetitions(capsys):
         # a zero-phase smoother lowers the jitter and does not delay
         ms = by[(d, "median_savgol", "all")]
         assert ms["jitter"] < 0.7 * raw["jitter"] and abs(ms["lag_frames"]) <= 1
+        # the sensor's error is mostly slow, and a smoother leaves its slow part where it was
+        assert 0.5 * raw["debiased_mean_m"] < raw["debiased_slow_m"] < raw["debiased_mean_m"]
+        assert ms["debiased_slow_m"] == pytest.approx(raw["debiased_slow_m"], rel=0.05)
 
 
 def test_cli_table_and_directory_argument(shared_data, capsys):

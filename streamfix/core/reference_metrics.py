@@ -12,7 +12,12 @@ what a cleaner changes from what the measurement set-up fixes:
   (m/frame^2), the per-sample form of :func:`streamfix.core.metrics.jitter`, so that
   it can be pooled over takes or split by frame (e.g. window hand-overs);
 * :func:`velocity_xcorr` -- normalised cross-correlation of velocities against the
-  reference's over a range of lags (frames); its argmax is the output's delay.
+  reference's over a range of lags (frames); its argmax is the output's delay;
+* :func:`slow_error_norm` -- the debiased error's part below a cut-off (zero-phase
+  low-pass): a linear zero-lag filter that passes movement below the cut-off passes this
+  error too (the robust smoothers measured beside it leave it within a few per cent);
+  only a cleaner that knows where the joint should be removes it (a failed limb
+  replaced, a sensor's pose-dependent bias learned).
 
 Arrays in, arrays out: positions ``(T, J, 3)`` metres, NaN = no sample.
 """
@@ -22,9 +27,14 @@ import warnings
 
 import numpy as np
 
+from .filters import butterworth
 from .metrics import _check_pair as _pair  # (T, J, 3) pairs, one validation for all metrics
 
-__all__ = ["remove_mean_offset", "second_difference_norm", "velocity_xcorr"]
+__all__ = ["remove_mean_offset", "second_difference_norm", "slow_error_norm", "velocity_xcorr", "SLOW_CUTOFF_HZ"]
+
+SLOW_CUTOFF_HZ = 3.0
+"""Cut-off (Hz) of :func:`slow_error_norm`: below it lies human movement itself (a 6 Hz
+low-pass is the markerless pipelines' default; 3 Hz keeps every smoother's pass band)."""
 
 
 def remove_mean_offset(pred: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -49,6 +59,21 @@ def second_difference_norm(positions: np.ndarray) -> np.ndarray:
     if x.shape[0] >= 3:
         out[1:-1] = np.linalg.norm(x[2:] - 2.0 * x[1:-1] + x[:-2], axis=2)
     return out
+
+
+def slow_error_norm(pred: np.ndarray, ref: np.ndarray, rate_hz: float, cutoff_hz: float = SLOW_CUTOFF_HZ) -> np.ndarray:
+    """``(T, J)`` m: ``|lowpass(debiased pred - ref)|`` per joint-frame, NaN where either is missing.
+
+    The debiased error (:func:`remove_mean_offset`) is low-passed along time (zero-phase
+    2nd-order Butterworth at ``cutoff_hz``, gaps bridged linearly for the filter only). On
+    the raw input this is the error a smoother that keeps movement below the cut-off cannot
+    touch: it brings the output's error down to about this, not below.
+    """
+    pred, ref = _pair(pred, ref)
+    err = remove_mean_offset(pred, ref) - ref
+    both = np.isfinite(err).all(axis=2)
+    slow = butterworth(err, rate_hz, both, cutoff_hz=cutoff_hz)
+    return np.where(both, np.linalg.norm(slow, axis=2), np.nan)
 
 
 def velocity_xcorr(pred: np.ndarray, ref: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:

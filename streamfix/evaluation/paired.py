@@ -15,6 +15,9 @@ scores the output against the reference, per dataset and per body region (``all`
      debiased_mean_m,             # the same after removing each joint's mean offset over the
      debiased_p95_m,              #   take (per method): marker-vs-joint-centre bias is not the
                                   #   cleaner's to fix; p95 over all joint-frames
+     debiased_slow_m,             # mean of the debiased error's part below 3 Hz
+                                  #   (reference_metrics.slow_error_norm): on ``input``, the
+                                  #   floor a temporal filter cannot go below
      jitter, jitter_reference,    # mean |second difference| (m/frame^2) on the same joint-frames
      jitter_ratio,                # output / reference
      bone_cv,                     # bone-length CV of the output (bones ending in the region)
@@ -52,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import metrics
-from ..core.reference_metrics import remove_mean_offset, second_difference_norm, velocity_xcorr
+from ..core.reference_metrics import remove_mean_offset, second_difference_norm, slow_error_norm, velocity_xcorr
 from ..io.paired import PairedTake, TakeRef, default_paired_dir, find_takes, load_take
 from . import registry
 
@@ -119,6 +122,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
         dt = time.perf_counter() - t0
         err = np.linalg.norm(y - ref, axis=2)
         deb = np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)
+        slow = slow_error_norm(y, ref, take.sensor.rate_hz)
         d2 = second_difference_norm(y)
         for region, joints in regions.items():
             jm = joints[None, :]
@@ -134,6 +138,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
                 "frames": T,
                 "err_sum": float(err[e_ok].sum()), "err_n": int(e_ok.sum()), "ref_n": int((has_ref & jm).sum()),
                 "deb": deb[e_ok & np.isfinite(deb)].astype(np.float32),
+                "slow_sum": float(np.nansum(slow[e_ok])), "slow_n": int((e_ok & np.isfinite(slow)).sum()),
                 "jit_sum": float(d2[j_ok].sum()), "jit_ref_sum": float(d2_ref[j_ok].sum()), "jit_n": int(j_ok.sum()),
                 "cv": cv,
                 "xcorr": xc, "lag": int(lags[np.nanargmax(xc)]) if np.isfinite(xc).any() else None,
@@ -151,7 +156,7 @@ def _ratio(a: float, b: float) -> float | None:
 
 
 _SUMMED = ("frames", "err_sum", "err_n", "ref_n", "jit_sum", "jit_ref_sum", "jit_n",
-           "seam_sum", "seam_n", "other_sum", "other_n", "time_s")  # partial sums pooled over takes
+           "seam_sum", "seam_n", "other_sum", "other_n", "slow_sum", "slow_n", "time_s")  # partial sums pooled over takes
 
 
 def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
@@ -192,6 +197,7 @@ def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
             "coverage": s["err_n"] / s["ref_n"] if s["ref_n"] else None,
             "debiased_mean_m": float(deb.mean()) if deb.size else None,
             "debiased_p95_m": float(np.percentile(deb, 95)) if deb.size else None,
+            "debiased_slow_m": s["slow_sum"] / s["slow_n"] if s["slow_n"] else None,
             "jitter": jit,
             "jitter_reference": jit_ref,
             "jitter_ratio": _ratio(jit, jit_ref) if jit is not None else None,
@@ -280,7 +286,8 @@ def print_paired_table(records: list[dict], out=None) -> None:
     groups: dict[tuple, list[dict]] = {}
     for r in records:
         groups.setdefault((r["file"], r["dataset"], r["region"]), []).append(r)
-    cols = ("mean mm", "debiased mm", "x input", "p95 mm", "x input", "jitter/ref", "bone CV", "lag fr", "seam")
+    cols = ("mean mm", "debiased mm", "x input", "<3 Hz mm", "p95 mm", "x input", "jitter/ref", "bone CV", "lag fr",
+            "seam")
     for (file, dataset, region), recs in groups.items():
         base = next((r for r in recs if r["method"] == "input"), None)
         print(f"\n{dataset} ({recs[0]['n_takes']} takes, {recs[0]['n_frames']} frames, {recs[0].get('subset', '')}), "
@@ -292,7 +299,8 @@ def print_paired_table(records: list[dict], out=None) -> None:
                 for i, k in enumerate(("debiased_mean_m", "debiased_p95_m")):
                     if r[k] is not None and base[k]:
                         rel[i] = r[k] / base[k]
-            row = [_mm(r["mean_error_m"]), _mm(r["debiased_mean_m"]), _num(rel[0]), _mm(r["debiased_p95_m"]),
+            row = [_mm(r["mean_error_m"]), _mm(r["debiased_mean_m"]), _num(rel[0]), _mm(r.get("debiased_slow_m")),
+                   _mm(r["debiased_p95_m"]),
                    _num(rel[1]), _num(r["jitter_ratio"]), _num(r["bone_cv"], 4),
                    "-" if r["lag_frames"] is None else str(r["lag_frames"]), _num(r["seam_ratio"])]
             print(f"{r['method']:<16}" + "".join(f"{c:>12}" for c in row), file=out)
