@@ -261,7 +261,9 @@ def robust_temporal_fit(
     prior = np.where(np.isfinite(y), prior, 0.0)
     obs = prior > 0
     y0 = np.where(obs, y, 0.0)
-    med = running_median(np.where(obs, y, np.nan), 2 * h + 1)
+    # only the reweighting's start: the local quadratics that follow carry the trend at the
+    # edges themselves (detrended edges changed no output here and cost ~0.3 ms per width)
+    med = running_median(np.where(obs, y, np.nan), 2 * h + 1, detrend_edges=False)
     fit = np.where(np.isfinite(med), med, 0.0)
     support = np.zeros_like(y0)
     for c in scales_m:  # graduated non-convexity: wide basin first, then sharpen
