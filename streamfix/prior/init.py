@@ -353,13 +353,13 @@ def fill_long_gaps(
         p = _estimate(prior, x, obs, rate_hz, _resolve_layout(prior, x, skeleton), method, CHORD_STEPS)
     # only the samples to fill: offsets at the gap's observed ends, blended linearly across it
     t_f, j_f = np.nonzero(fill)
-    pv, nx = prev[fill], nxt[fill]
+    pv, nx = prev[t_f, j_f], nxt[t_f, j_f]
     has_p, has_n = pv >= 0, nx < n
-    pc, nc = np.maximum(pv, 0), np.minimum(nx, n - 1)
-    d_prev = np.where(has_p[:, None], x[pc, j_f] - p[pc, j_f], 0.0)  # x is observed (finite) at pc where has_p
-    d_next = np.where(has_n[:, None], x[nc, j_f] - p[nc, j_f], 0.0)
-    d_prev = np.where((~has_p & has_n)[:, None], d_next, d_prev)
-    d_next = np.where((has_p & ~has_n)[:, None], d_prev, d_next)
+    # the observed end before and after the gap; an edge gap uses its one observed end on both sides
+    pc, nc = np.where(has_p, pv, np.minimum(nx, n - 1)), np.where(has_n, nx, np.maximum(pv, 0))
+    seen = (has_p | has_n)[:, None]  # else the joint is never observed: the prior's value as it is
+    d_prev = np.where(seen, x[pc, j_f] - p[pc, j_f], 0.0)  # x is observed (finite) at pc, nc where seen
+    d_next = np.where(seen, x[nc, j_f] - p[nc, j_f], 0.0)
     a = ((t_f - pv) / (nx - pv))[:, None]  # in (0, 1): pv < t_f < nx
     out[t_f, j_f] = p[t_f, j_f] + (1 - a) * d_prev + a * d_next
     return out, fill
