@@ -145,7 +145,6 @@ class _Maps(NamedTuple):
     used_t: np.ndarray  # (J, 20) float 0/1: the layout joint contributes to the canonical one
     covered: np.ndarray  # (20,) bool: canonical joints the layout can observe
     approx: np.ndarray  # (A,) the layout joints that are not exact
-    approx_parent: np.ndarray  # (A,) the canonical parent of their anchors
 
 
 _MAPS: dict[str, _Maps] = {}
@@ -171,8 +170,7 @@ def _build_maps(layout: Layout) -> _Maps:
             (lj, wt), = parts.items()
             exact[idx[lj]] = wt == 1.0 and layout.anchors[lj] == cj
     used = np.abs(w) > 0
-    approx = np.flatnonzero(~exact)
-    maps = _Maps(w, anchor, exact, used.T.astype(np.float64), used.any(axis=1), approx, _PARENT_INDEX[anchor[approx]])
+    maps = _Maps(w, anchor, exact, used.T.astype(np.float64), used.any(axis=1), np.flatnonzero(~exact))
     for a in maps:
         a.setflags(write=False)  # shared by every caller
     return maps
@@ -319,15 +317,19 @@ def from_canonical(
     return _from_canonical(c, _matrices(lay), x, obs)
 
 
-def _from_canonical(c: np.ndarray, maps: _Maps, x: np.ndarray, obs: np.ndarray) -> np.ndarray:
-    """``from_canonical`` of a (..., 20, 3) float array and validated layout data (``_check``'s output)."""
+def _from_canonical(c: np.ndarray, maps: _Maps, x: np.ndarray, obs: np.ndarray,
+                    joints: np.ndarray | None = None) -> np.ndarray:
+    """``from_canonical`` of a (..., 20, 3) float array and validated layout data (``_check``'s output).
+
+    ``joints`` (J,) bool: only these need their exact place; the others that are not canonical joints
+    are left at their anchors (a caller that reads a few joints skips the others' fits)."""
     out = c[..., maps.anchor, :]  # a copy (fancy indexing)
-    approx = maps.approx
+    approx = maps.approx if joints is None else maps.approx[joints[maps.approx]]
     if approx.size:
         # x_j ~ a + k u + d: a = anchor, u = a - (anchor's parent), k and d fitted on the observed frames,
         # so a hand tip stays on the line of the hand segment as the hand turns
         a = out[..., approx, :]
-        u = a - c[..., maps.approx_parent, :]
+        u = a - c[..., _PARENT_INDEX[maps.anchor[approx]], :]
         o = obs[..., approx, None]
         diff = np.where(o, x[..., approx, :] - a, 0.0)
         uu = np.where(o, u, 0.0)

@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from streamfix.core.interpolate import neighbour_observations, observed_mask
+
 from .data import cut_windows, resample_masked
 from .runtime import Prior, load_default_prior
 
@@ -215,10 +217,11 @@ def _resolve_layout(prior: Prior, x: np.ndarray, skeleton: str | None):
 
 
 def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layout, method: str,
-              max_iter: int) -> np.ndarray:
+              max_iter: int, joints: np.ndarray | None = None) -> np.ndarray:
     """``prior_initial_guess(..., keep_observed=False)`` of validated input (``obs`` observed and finite).
 
-    ``layout``: ``_resolve_layout``'s answer; the motion is mapped to the canonical joints and back."""
+    ``layout``: ``_resolve_layout``'s answer; the motion is mapped to the canonical joints and back
+    (``joints`` (J,) bool: only these layout joints are wanted, ``canonical._from_canonical``)."""
     if layout is not None:
         from streamfix.canonical import _from_canonical, _matrices, _to_canonical
 
@@ -227,7 +230,7 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
         est = _estimate(prior, cx, cobs, rate_hz, None, method, max_iter)
         if not np.isfinite(est).any():
             return np.full_like(x, np.nan)
-        return _from_canonical(est, maps, x, obs)
+        return _from_canonical(est, maps, x, obs, joints)
     n = x.shape[0]
     if n == 0 or not obs.any():
         return np.full_like(x, np.nan)
@@ -334,14 +337,12 @@ def fill_long_gaps(
     (see ``benchmarks/results/prior.json`` for both costs and accuracies).
     """
     x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
-    n, n_j = obs.shape
+    obs = observed_mask(x, observed)
+    n = obs.shape[0]
     out = np.where(obs[..., None], x, np.nan)
     if n == 0 or obs.all() or not obs.any():
         return out, np.zeros_like(obs)
-    idx = np.arange(n)[:, None]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, n)[::-1], axis=0)[::-1]
+    prev, nxt = neighbour_observations(obs)
     run = nxt - prev - 1  # length of the gap each missing sample sits in
     fill = ~obs & (run >= min_gap_frames)
     if not fill.any():
@@ -350,7 +351,9 @@ def fill_long_gaps(
         p = estimate
     else:
         prior = prior or load_default_prior()
-        p = _estimate(prior, x, obs, rate_hz, _resolve_layout(prior, x, skeleton), method, CHORD_STEPS)
+        # only the joints with samples to fill are read from the estimate
+        p = _estimate(prior, x, obs, rate_hz, _resolve_layout(prior, x, skeleton), method, CHORD_STEPS,
+                      joints=fill.any(axis=0))
     # only the samples to fill: offsets at the gap's observed ends, blended linearly across it
     t_f, j_f = np.nonzero(fill)
     pv, nx = prev[t_f, j_f], nxt[t_f, j_f]

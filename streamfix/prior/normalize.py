@@ -34,6 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from streamfix.core.interpolate import observed_mask
+
 __all__ = [
     "KINECT_V2_ROOT",
     "KINECT_V2_MIRROR",
@@ -100,7 +102,7 @@ def _interp_rows(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
 def _clean(positions: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(positions with unobserved joints set to 0, observed & finite): the validated input of the helpers below."""
     positions = np.asarray(positions, dtype=np.float64)
-    observed = np.asarray(observed, dtype=bool) & np.isfinite(positions).all(axis=-1)
+    observed = observed_mask(positions, observed)
     return np.where(observed[..., None], positions, 0.0), observed
 
 
