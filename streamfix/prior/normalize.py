@@ -133,8 +133,10 @@ def bone_lengths_median(positions: np.ndarray, observed: np.ndarray, bones: np.n
     """Median length (m) of each bone over frames where both its joints are observed; NaN if never."""
     positions = np.asarray(positions, dtype=np.float64)
     bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    both = observed[:, bones[:, 0]] & observed[:, bones[:, 1]]  # (T, B)
-    d = positions[:, bones[:, 1]] - positions[:, bones[:, 0]]
+    ends = bones.T.ravel()  # parents, then children: one gather each for both ends
+    o, p = observed[:, ends].reshape(len(observed), 2, -1), positions[:, ends].reshape(len(positions), 2, -1, 3)
+    both = o[:, 0] & o[:, 1]  # (T, B)
+    d = p[:, 1] - p[:, 0]
     lengths = np.sqrt(np.einsum("tbk,tbk->tb", d, d))
     # median over the observed frames of each bone: sort with the unobserved ones last (np.nanmedian is 10x slower)
     n = both.sum(axis=0)
