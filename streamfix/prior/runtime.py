@@ -136,7 +136,7 @@ class Prior:
     def root_index(self) -> int:
         return int(self.card["normalisation"]["root_index"])
 
-    @cached_property
+    @property
     def norm_kwargs(self) -> dict:
         """``normalise`` keyword arguments of this model (root, fallback hips, scale bones) from the card."""
         norm = self.card["normalisation"]
