@@ -134,7 +134,8 @@ def bone_lengths_median(positions: np.ndarray, observed: np.ndarray, bones: np.n
     positions = np.asarray(positions, dtype=np.float64)
     bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     ends = bones.T.ravel()  # parents, then children: one gather each for both ends
-    o, p = observed[:, ends].reshape(len(observed), 2, -1), positions[:, ends].reshape(len(positions), 2, -1, 3)
+    n_t, n_b = len(positions), len(bones)
+    o, p = observed[:, ends].reshape(n_t, 2, n_b), positions[:, ends].reshape(n_t, 2, n_b, 3)
     both = o[:, 0] & o[:, 1]  # (T, B)
     d = p[:, 1] - p[:, 0]
     lengths = np.sqrt(np.einsum("tbk,tbk->tb", d, d))
