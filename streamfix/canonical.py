@@ -287,7 +287,7 @@ def to_canonical(positions: np.ndarray, observed: np.ndarray, layout: str | Layo
 
 def _to_canonical(x: np.ndarray, obs: np.ndarray, maps: _Maps) -> tuple[np.ndarray, np.ndarray]:
     """``to_canonical`` of validated input (``_check``'s output)."""
-    out = maps.weights @ np.where(obs[..., None], x, 0.0)  # (C, J) x (..., J, 3): a matrix product, not einsum (latency)
+    out = maps.weights @ np.where(obs[..., None], x, 0.0)  # (C, J) x (..., J, 3): matmul, not einsum (latency)
     # a canonical joint is observed where every contributing layout joint is
     cobs = maps.covered & ~((~obs).astype(np.float64) @ maps.used_t > 0)
     out[~cobs] = np.nan
