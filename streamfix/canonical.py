@@ -27,6 +27,8 @@ joint never observed sits at its anchor.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
+
 import numpy as np
 
 from .skeletons import AZURE_KINECT, COCO_17, KINECT_V2, MEDIAPIPE_POSE
@@ -116,35 +118,46 @@ class Layout:
     @property
     def weights(self) -> np.ndarray:
         """(20, J) matrix W: canonical = W @ layout positions."""
-        return _matrices(self)[0]
+        return _matrices(self).weights
 
     @property
     def anchor_index(self) -> np.ndarray:
         """(J,) canonical index each layout joint moves with."""
-        return _matrices(self)[1]
+        return _matrices(self).anchor
 
     @property
     def exact(self) -> np.ndarray:
         """(J,) bool: the layout joint is itself a canonical joint (weight 1, one-to-one)."""
-        return _matrices(self)[2]
+        return _matrices(self).exact
 
     @property
     def covered(self) -> np.ndarray:
         """(20,) bool: the canonical joints this layout can observe."""
-        return np.abs(self.weights).sum(axis=1) > 0
+        return _matrices(self).covered
 
 
-_MATRICES: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+class _Maps(NamedTuple):
+    """A layout's index maps, built once per layout name (the prior maps every streamed window)."""
+
+    weights: np.ndarray  # (20, J): canonical = W @ layout positions
+    anchor: np.ndarray  # (J,) canonical joint each layout joint moves with
+    exact: np.ndarray  # (J,) bool: the layout joint is a canonical joint
+    used_t: np.ndarray  # (J, 20) float 0/1: the layout joint contributes to the canonical one
+    covered: np.ndarray  # (20,) bool: canonical joints the layout can observe
+    approx: np.ndarray  # (A,) the layout joints that are not exact
 
 
-def _matrices(layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(weights, anchor index, exact) of a layout, computed once per layout name."""
-    if layout.name not in _MATRICES:
-        _MATRICES[layout.name] = _build_matrices(layout)
-    return _MATRICES[layout.name]
+_MAPS: dict[str, _Maps] = {}
 
 
-def _build_matrices(layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _matrices(layout: Layout) -> _Maps:
+    """The ``_Maps`` of a layout, computed once per layout name."""
+    if layout.name not in _MAPS:
+        _MAPS[layout.name] = _build_maps(layout)
+    return _MAPS[layout.name]
+
+
+def _build_maps(layout: Layout) -> _Maps:
     idx = {n: i for i, n in enumerate(layout.joints)}
     w = np.zeros((len(CANONICAL_JOINTS), len(layout.joints)))
     for cj, parts in layout.to_canonical.items():
@@ -156,7 +169,11 @@ def _build_matrices(layout: Layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         if len(parts) == 1:
             (lj, wt), = parts.items()
             exact[idx[lj]] = wt == 1.0 and layout.anchors[lj] == cj
-    return w, anchor, exact
+    used = np.abs(w) > 0
+    maps = _Maps(w, anchor, exact, used.T.astype(np.float64), used.any(axis=1), np.flatnonzero(~exact))
+    for a in maps:
+        a.setflags(write=False)  # shared by every caller
+    return maps
 
 
 def _layout(name: str, joints, to_canonical: dict, extra_anchors: dict) -> Layout:
@@ -265,12 +282,14 @@ def to_canonical(positions: np.ndarray, observed: np.ndarray, layout: str | Layo
     """Layout positions (..., J, 3) m and mask (..., J) -> canonical (..., 20, 3) (NaN where unobserved) and mask."""
     lay = get_layout(layout) if isinstance(layout, str) else layout
     x, obs = _check(positions, observed, lay.n_joints, f"to_canonical({lay.name})")
-    w = lay.weights
-    used = np.abs(w) > 0
-    out = w @ np.where(obs[..., None], x, 0.0)  # (C, J) x (..., J, 3): a matrix product, not einsum (latency)
+    return _to_canonical(x, obs, _matrices(lay))
+
+
+def _to_canonical(x: np.ndarray, obs: np.ndarray, maps: _Maps) -> tuple[np.ndarray, np.ndarray]:
+    """``to_canonical`` of validated input (``_check``'s output)."""
+    out = maps.weights @ np.where(obs[..., None], x, 0.0)  # (C, J) x (..., J, 3): matmul, not einsum (latency)
     # a canonical joint is observed where every contributing layout joint is
-    missing = (~obs).astype(np.float64) @ used.T.astype(np.float64) > 0
-    cobs = lay.covered & ~missing
+    cobs = maps.covered & ~((~obs).astype(np.float64) @ maps.used_t > 0)
     out[~cobs] = np.nan
     return out, cobs
 
@@ -292,26 +311,35 @@ def from_canonical(
     c = np.asarray(canonical, dtype=np.float64)
     if c.shape[-2:] != (len(CANONICAL_JOINTS), 3):
         raise ValueError(f"from_canonical: expected (..., {len(CANONICAL_JOINTS)}, 3), got {c.shape}")
-    out = c[..., lay.anchor_index, :].copy()
     if positions is None:
-        return out
+        return c[..., lay.anchor_index, :]
     x, obs = _check(positions, observed, lay.n_joints, f"from_canonical({lay.name})")
-    approx = np.flatnonzero(~lay.exact)
+    return _from_canonical(c, _matrices(lay), x, obs)
+
+
+def _from_canonical(c: np.ndarray, maps: _Maps, x: np.ndarray, obs: np.ndarray,
+                    joints: np.ndarray | None = None) -> np.ndarray:
+    """``from_canonical`` of a (..., 20, 3) float array and validated layout data (``_check``'s output).
+
+    ``joints`` (J,) bool: only these need their exact place; the others that are not canonical joints
+    are left at their anchors (a caller that reads a few joints skips the others' fits)."""
+    out = c[..., maps.anchor, :]  # a copy (fancy indexing)
+    approx = maps.approx if joints is None else maps.approx[joints[maps.approx]]
     if approx.size:
         # x_j ~ a + k u + d: a = anchor, u = a - (anchor's parent), k and d fitted on the observed frames,
         # so a hand tip stays on the line of the hand segment as the hand turns
         a = out[..., approx, :]
-        u = a - c[..., _PARENT_INDEX[lay.anchor_index[approx]], :]
-        o = obs[..., approx]
-        diff = np.where(o[..., None], x[..., approx, :] - a, 0.0)
-        uu = np.where(o[..., None], u, 0.0)
-        n = np.maximum(o.sum(axis=-2), 1)[..., None]  # (..., A, 1)
+        u = a - c[..., _PARENT_INDEX[maps.anchor[approx]], :]
+        o = obs[..., approx, None]
+        diff = np.where(o, x[..., approx, :] - a, 0.0)
+        uu = np.where(o, u, 0.0)
+        n = np.maximum(o.sum(axis=-3), 1)  # (..., A, 1)
         u_mean, d_mean = uu.sum(axis=-3) / n, diff.sum(axis=-3) / n
-        du = np.where(o[..., None], u - u_mean[..., None, :, :], 0.0)
-        cov = (du * (diff - d_mean[..., None, :, :])).sum(axis=(-3, -1))
-        var = (du * du).sum(axis=(-3, -1))
+        du = np.where(o, u - u_mean[..., None, :, :], 0.0)
+        cov = np.einsum("...tak,...tak->...a", du, diff - d_mean[..., None, :, :])
+        var = np.einsum("...tak,...tak->...a", du, du)
         # k within +-3 segment lengths: a segment that barely turned in the window says little about k
-        k = np.clip(np.where(var > 1e-6, cov / np.maximum(var, 1e-12), 0.0), -3.0, 3.0)  # (..., A)
+        k = np.minimum(np.maximum(np.where(var > 1e-6, cov / np.maximum(var, 1e-12), 0.0), -3.0), 3.0)  # (..., A)
         d = d_mean - k[..., None] * u_mean
         out[..., approx, :] = a + k[..., None, :, None] * u + d[..., None, :, :]
     return out

@@ -227,12 +227,13 @@ def resample_masked(
 
 
 def cut_windows(
-    positions: np.ndarray, observed: np.ndarray, window: int = 64, hop: int | None = None
+    positions: np.ndarray, observed: np.ndarray, window: int = 64, hop: int | None = None, fill: float = np.nan
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Windows (W, window, J, 3) and masks (W, window, J) covering every frame, and their start frames (W,).
 
     Starts are 0, hop, 2*hop, ... with the last window aligned to the end; a take
     shorter than ``window`` becomes one window padded with unobserved frames.
+    Unobserved samples of the windows are ``fill`` (the prior's input takes 0).
     """
     hop = window if hop is None else hop
     n = positions.shape[0]
@@ -248,5 +249,5 @@ def cut_windows(
     idx = np.minimum(idx, n - 1)
     pos = positions[idx]
     mask = observed[idx] & valid[..., None]
-    pos = np.where(mask[..., None], pos, np.nan)
+    pos = np.where(mask[..., None], pos, fill)
     return pos, mask, starts

@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from streamfix.core.interpolate import neighbour_observations, observed_mask
+
 from .data import cut_windows, resample_masked
 from .runtime import Prior, load_default_prior
 
@@ -195,33 +197,49 @@ def prior_initial_guess(
     """
     prior = prior or load_default_prior()
     x = np.asarray(positions, dtype=np.float64)
+    layout = _resolve_layout(prior, x, skeleton)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
+    if obs.shape != x.shape[:2]:
+        raise ValueError(f"observed must be {x.shape[:2]}, got {obs.shape}")
+    est = _estimate(prior, x, obs, rate_hz, layout, method, max_iter)
+    if keep_observed and (layout is None or np.isfinite(est).any()):  # a mapped motion it saw nothing of: all NaN
+        est[obs] = x[obs]
+    return est
+
+
+def _resolve_layout(prior: Prior, x: np.ndarray, skeleton: str | None):
+    """The mapped layout of (T, J, 3) positions (None: the prior's own joints); ValueError for any other shape."""
     layout = _layout_of(prior, x.shape[1], skeleton) if x.ndim == 3 else None
     if x.ndim != 3 or x.shape[2] != 3 or (x.shape[1] != prior.n_joints and layout is None):
         raise ValueError(f"positions must be (T, {prior.n_joints}, 3) for the prior's skeleton or (T, J, 3) of a "
                          f"layout streamfix.canonical maps, got {x.shape}")
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
-    if obs.shape != x.shape[:2]:
-        raise ValueError(f"observed must be {x.shape[:2]}, got {obs.shape}")
-    if layout is not None:
-        from streamfix.canonical import from_canonical, to_canonical
+    return layout
 
-        cx, cobs = to_canonical(x, obs, layout)
-        est = prior_initial_guess(cx, cobs, rate_hz, prior=prior, method=method, keep_observed=False, max_iter=max_iter)
+
+def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layout, method: str,
+              max_iter: int, joints: np.ndarray | None = None) -> np.ndarray:
+    """``prior_initial_guess(..., keep_observed=False)`` of validated input (``obs`` observed and finite).
+
+    ``layout``: ``_resolve_layout``'s answer; the motion is mapped to the canonical joints and back
+    (``joints`` (J,) bool: only these layout joints are wanted, ``canonical._from_canonical``)."""
+    if layout is not None:
+        from streamfix.canonical import _from_canonical, _matrices, _to_canonical
+
+        maps = _matrices(layout)
+        cx, cobs = _to_canonical(x, obs, maps)
+        est = _estimate(prior, cx, cobs, rate_hz, None, method, max_iter)
         if not np.isfinite(est).any():
             return np.full_like(x, np.nan)
-        est = from_canonical(est, layout, x, obs)
-        if keep_observed:
-            est[obs] = x[obs]
-        return est
+        return _from_canonical(est, maps, x, obs, joints)
     n = x.shape[0]
     if n == 0 or not obs.any():
         return np.full_like(x, np.nan)
     if method not in ("latent", "encode"):
         raise ValueError(f"method must be 'latent' or 'encode', got {method!r}")
-    xr, obr = resample_masked(x, obs, rate_hz, prior.rate_hz)
+    # at the prior's own rate the motion is used as it is (resample_masked would copy it)
+    xr, obr = (x, obs) if rate_hz == prior.rate_hz else resample_masked(x, obs, rate_hz, prior.rate_hz)
     w_len = prior.window
-    wins, masks, starts = cut_windows(xr, obr, w_len, w_len // 2)
-    wins = np.nan_to_num(wins)
+    wins, masks, starts = cut_windows(xr, obr, w_len, w_len // 2, fill=0.0)
     if method == "latent":
         from .latent import fit_latent
 
@@ -242,8 +260,6 @@ def prior_initial_guess(
         est = interpolate_linear(est, np.isfinite(est).all(axis=-1))[0]
     if xr.shape[0] != n:
         est = _resample_full(est, prior.rate_hz, rate_hz, n)
-    if keep_observed:
-        est[obs] = x[obs]
     return est
 
 
@@ -321,29 +337,32 @@ def fill_long_gaps(
     (see ``benchmarks/results/prior.json`` for both costs and accuracies).
     """
     x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=-1)
-    n, n_j = obs.shape
+    obs = observed_mask(x, observed)
+    n = obs.shape[0]
     out = np.where(obs[..., None], x, np.nan)
     if n == 0 or obs.all() or not obs.any():
         return out, np.zeros_like(obs)
-    idx = np.arange(n)[:, None]
-    prev = np.maximum.accumulate(np.where(obs, idx, -1), axis=0)
-    nxt = np.minimum.accumulate(np.where(obs, idx, n)[::-1], axis=0)[::-1]
+    prev, nxt = neighbour_observations(obs)
     run = nxt - prev - 1  # length of the gap each missing sample sits in
     fill = ~obs & (run >= min_gap_frames)
     if not fill.any():
         return out, fill
-    p = estimate if estimate is not None else prior_initial_guess(x, obs, rate_hz, prior=prior, keep_observed=False,
-                                                                   skeleton=skeleton, method=method)
+    if estimate is not None:
+        p = estimate
+    else:
+        prior = prior or load_default_prior()
+        # only the joints with samples to fill are read from the estimate
+        p = _estimate(prior, x, obs, rate_hz, _resolve_layout(prior, x, skeleton), method, CHORD_STEPS,
+                      joints=fill.any(axis=0))
     # only the samples to fill: offsets at the gap's observed ends, blended linearly across it
     t_f, j_f = np.nonzero(fill)
-    pv, nx = prev[fill], nxt[fill]
+    pv, nx = prev[t_f, j_f], nxt[t_f, j_f]
     has_p, has_n = pv >= 0, nx < n
-    pc, nc = np.clip(pv, 0, n - 1), np.clip(nx, 0, n - 1)
-    d_prev = np.where(has_p[:, None], x[pc, j_f] - p[pc, j_f], 0.0)  # x is observed (finite) at pc where has_p
-    d_next = np.where(has_n[:, None], x[nc, j_f] - p[nc, j_f], 0.0)
-    d_prev = np.where((~has_p & has_n)[:, None], d_next, d_prev)
-    d_next = np.where((has_p & ~has_n)[:, None], d_prev, d_next)
-    a = np.clip((t_f - pv) / np.maximum(nx - pv, 1), 0.0, 1.0)[:, None]
+    # the observed end before and after the gap; an edge gap uses its one observed end on both sides
+    pc, nc = np.where(has_p, pv, np.minimum(nx, n - 1)), np.where(has_n, nx, np.maximum(pv, 0))
+    seen = (has_p | has_n)[:, None]  # else the joint is never observed: the prior's value as it is
+    d_prev = np.where(seen, x[pc, j_f] - p[pc, j_f], 0.0)  # x is observed (finite) at pc, nc where seen
+    d_next = np.where(seen, x[nc, j_f] - p[nc, j_f], 0.0)
+    a = ((t_f - pv) / (nx - pv))[:, None]  # in (0, 1): pv < t_f < nx
     out[t_f, j_f] = p[t_f, j_f] + (1 - a) * d_prev + a * d_next
     return out, fill

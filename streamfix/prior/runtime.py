@@ -20,12 +20,12 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from .normalize import WindowNorm, denormalise, normalise
+from .normalize import NormSpec, WindowNorm, _clean, denormalise
 
 __all__ = ["Prior", "DEFAULT_CARD", "sha256_file", "load_default_prior", "set_default_prior"]
 
@@ -34,6 +34,12 @@ DEFAULT_CARD = Path(__file__).resolve().parent / "models" / "canonical.json"
 
 def sha256_file(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """``a`` made read-only: the card's arrays are computed once per model and shared by every caller."""
+    a.setflags(write=False)
+    return a
 
 
 def _session(path: Path, threads: int):
@@ -108,18 +114,18 @@ class Prior:
     def latent_size(self) -> int:
         return int(self.card["latent"])
 
-    @property
+    @cached_property
     def bones(self) -> np.ndarray:
-        return np.asarray(self.card["normalisation"]["bones"], dtype=np.intp).reshape(-1, 2)
+        return _read_only(np.asarray(self.card["normalisation"]["bones"], dtype=np.intp).reshape(-1, 2))
 
-    @property
+    @cached_property
     def reference_lengths(self) -> np.ndarray:
-        return np.asarray(self.card["normalisation"]["reference_bone_lengths_m"], dtype=np.float64)
+        return _read_only(np.asarray(self.card["normalisation"]["reference_bone_lengths_m"], dtype=np.float64))
 
-    @property
+    @cached_property
     def facing_template(self) -> np.ndarray | None:
         t = self.card["normalisation"].get("facing_template")
-        return None if t is None else np.asarray(t, dtype=np.float64)
+        return None if t is None else _read_only(np.asarray(t, dtype=np.float64))
 
     @property
     def jacobian_frame_step(self) -> int:
@@ -140,6 +146,11 @@ class Prior:
         if "scale_bones_child_index" in norm:
             kw["scale_bones"] = tuple(int(i) for i in norm["scale_bones_child_index"])
         return kw
+
+    @cached_property
+    def norm_spec(self) -> NormSpec:
+        """This model's ``normalise`` constants, resolved once (the latency path normalises every window)."""
+        return NormSpec.of(self.bones, self.reference_lengths, template=self.facing_template, **self.norm_kwargs)
 
     # ------------------------------------------------------------ raw networks
     def encode(self, y: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -210,14 +221,10 @@ class Prior:
     # ----------------------------------------------------------- metre windows
     def normalise(self, windows: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[WindowNorm]]:
         """Metre windows (B, T, J, 3) + masks (B, T, J) -> normalised (B, T, J, 3), masks, per-window norms."""
-        ys, norms = [], []
-        bones, ref, tmpl, kw = self.bones, self.reference_lengths, self.facing_template, self.norm_kwargs
-        for w, o in zip(windows, observed):  # windows, not frames
-            y, n = normalise(w, o, bones, ref, template=tmpl, **kw)
-            ys.append(y)
-            norms.append(n)
-        obs = np.asarray(observed, dtype=bool) & np.isfinite(windows).all(axis=-1)
-        return np.stack(ys), obs, norms
+        clean, obs = _clean(windows, observed)
+        spec = self.norm_spec
+        out = [spec.normalise(w, o) for w, o in zip(clean, obs)]  # windows, not frames
+        return np.stack([y for y, _ in out]), obs, [n for _, n in out]
 
     def reconstruct(self, window: np.ndarray, observed: np.ndarray) -> np.ndarray:
         """D(E(Y)) in metres: (T, J, 3) window + (T, J) mask, or batches (B, T, J, 3) + (B, T, J).
