@@ -338,6 +338,9 @@ def score_prior_on_takes(card_path: str | Path, takes: list, seed: int = 0, max_
                                  _patterns(DEFAULT_LEVELS, prior.n_joints, CANONICAL_LIMBS), methods, seed,
                                  CANONICAL_BONES, CANONICAL_LIMBS)
         for r in recs:
+            if "error" in r:  # a method failed on every window: a card must not hide it
+                raise RuntimeError(f"held-out scoring of {r['method']} on {group} ({r['pattern']}) failed on "
+                                   f"{r['failed_windows']} windows: {r['error']}")
             out.append({"take": group, "takes": len(members), "pattern": r["pattern"], "test_otp": round(r["test_otp"], 1),
                         "method": r["method"], "rmse_m": round(r["rmse_m"], 5),
                         "rmse_dropped_m": round(r["rmse_dropped_m"], 5), "windows": r["windows"],
