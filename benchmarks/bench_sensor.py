@@ -17,6 +17,10 @@ Bars (issue 8, "Sensor protocol" and "No seam"), for the ``streamfix`` method:
   ``median_savgol``'s on every kind that has such frames;
 * on swapped joint-frames at most 0.3x the input's error; on frozen/drifting limbs
   (``freeze``, flagged inferred) at most 0.5x;
+* ``flagged`` (right limbs flagged inferred: a hazard, not an error, so no "below the best
+  baseline" bar; the input is exact there): error on the flagged joint-frames no larger
+  than ``median_savgol``'s there, i.e. a cleaner that questions inferred limbs may not
+  damage right ones more than a plain smoother does;
 * seam ratio (jitter next to window hand-overs / elsewhere, pooled over all kinds)
   at most 1.1.
 
@@ -47,6 +51,7 @@ SWAP_MAX_RATIO = 0.3
 FREEZE_MAX_RATIO = 0.5
 SEAM_MAX_RATIO = 1.1
 NOT_BASELINES = ("input", "streamfix")
+HAZARDS = ("flagged",)  # the input is right there: scored for damage, not against the baselines
 GAP_ONLY = ("linear", "spline")  # pass observed samples through: a baseline only where the input has gaps
 
 
@@ -79,11 +84,16 @@ def check_bars(summary: dict, seam_ratio: float | None) -> list[dict]:
         has_gaps = per.get("input", {}).get("unfilled", 0.0) > 0
         base = {m: v["err_m"] for m, v in per.items()
                 if m not in NOT_BASELINES and v["err_m"] is not None and (has_gaps or m not in GAP_ONLY)}
-        if base and sf["err_m"] is not None:
+        ms = per.get("median_savgol")
+        if kind in HAZARDS:
+            if ms and ms["err_corrupted_m"] is not None and sf["err_corrupted_m"] is not None:
+                bars.append({"bar": "flagged joint-frames <= median_savgol's", "kind": kind,
+                             "value": sf["err_corrupted_m"], "target": ms["err_corrupted_m"],
+                             "ok": sf["err_corrupted_m"] <= ms["err_corrupted_m"]})
+        elif base and sf["err_m"] is not None:
             best = min(base, key=base.get)
             bars.append({"bar": f"streamfix < best baseline ({best}), all joint-frames", "kind": kind,
                          "value": sf["err_m"], "target": base[best], "ok": sf["err_m"] < base[best]})
-        ms = per.get("median_savgol")
         if ms and ms["err_clean_m"] is not None and sf["err_clean_m"] is not None:
             bars.append({"bar": "collateral damage <= median_savgol's", "kind": kind, "value": sf["err_clean_m"],
                          "target": ms["err_clean_m"], "ok": sf["err_clean_m"] <= ms["err_clean_m"]})

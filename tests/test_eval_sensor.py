@@ -55,6 +55,8 @@ def test_cli_scores_what_each_kind_did(records):
                 assert inp["unfilled"] > 0 and inp["err_m"] is None and inp["err_corrupted_m"] is None
                 assert inp["err_clean_m"] == 0.0
                 assert by[(kind, seed, "streamfix")]["unfilled"] == 0.0
+            elif kind == "flagged":  # only the flags changed: the input is exact everywhere
+                assert inp["n_corrupted"] > 0 and inp["err_m"] == 0.0 and inp["err_corrupted_m"] == 0.0
             else:
                 assert inp["err_clean_m"] == (0.0 if kind != "mix" else inp["err_clean_m"])
                 assert inp["err_corrupted_m"] > {"spike": 0.03, "jump": 0.15}.get(kind, 0.0)

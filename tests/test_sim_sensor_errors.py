@@ -37,8 +37,13 @@ def test_each_kind_changes_exactly_its_mask(truth, kind):
         # outside the mask: bit for bit the ground truth, tracked
         assert np.array_equal(c.positions[~mask], truth[~mask])
         assert (c.confidence[~mask] == 1.0).all()
-        # inside: every joint-frame changed
+        # inside: every joint-frame changed (its position, or for ``flagged`` only its flag)
         moved = np.linalg.norm(np.nan_to_num(c.positions, nan=1e6) - truth, axis=2)
+        if kind == "flagged":
+            assert np.array_equal(c.positions, truth) and (c.confidence[mask] == CONFIDENCE_INFERRED).all()
+            frozen = apply_sensor_errors(truth, np.random.default_rng(seed), ["freeze"], min_events=1)
+            assert np.array_equal(frozen.masks["freeze"], mask)  # the freeze kind's stretches, left right
+            continue
         assert (moved[mask] > 1e-9).all()
         if kind == "noise":
             assert mask.all()

@@ -26,6 +26,12 @@ Error kinds (:data:`KINDS`):
     ``freeze_missing_fraction`` of these stretches are flagged missing instead.
 ``dropout``
     The same limb stretches, always flagged missing (NaN, confidence 0).
+``flagged``
+    The same limb stretches flagged inferred while the positions stay right: not an
+    error but the hazard of trusting the flag (a Kinect infers occluded joints that are
+    often near the truth). A cleaner that replaces contradicted inferred limbs must leave
+    these where they are; the mask marks the flagged joint-frames (positions unchanged).
+    Not in the mix: how often a sensor's inferred limbs are right is not measured.
 ``spike``
     Single-frame outliers: one joint, one frame, ``3 cm + Exp`` metres in a random direction.
 ``stretch``
@@ -67,7 +73,7 @@ __all__ = [
     "DISTAL_SEGMENTS",
 ]
 
-KINDS = ("noise", "swap", "freeze", "dropout", "spike", "stretch", "jump")
+KINDS = ("noise", "swap", "freeze", "dropout", "spike", "stretch", "jump", "flagged")
 # the realistic mix: limb failures come as ``freeze`` with ``freeze_missing_fraction`` of
 # them flagged missing (``dropout`` alone is the all-missing variant, for scoring gap filling)
 MIX_KINDS = ("noise", "swap", "freeze", "spike", "stretch", "jump")
@@ -253,7 +259,7 @@ def _swap(X, conf, rng, p, rate_hz, min_events):
     return mask
 
 
-def _limb_failure(X, conf, rng, p, rate_hz, min_events, *, always_missing: bool):
+def _limb_failure(X, conf, rng, p, rate_hz, min_events, *, always_missing: bool, moves: bool = True):
     T = X.shape[0]
     mask = np.zeros(conf.shape, dtype=bool)
     seconds = T / rate_hz
@@ -261,7 +267,7 @@ def _limb_failure(X, conf, rng, p, rate_hz, min_events, *, always_missing: bool)
     for _ in range(_count(rng, p.freeze_rate_hz * _N_LIMBS * seconds, min_events)):
         seg = DISTAL_SEGMENTS[int(rng.integers(len(DISTAL_SEGMENTS)))]
         s, e = _span(rng, lo_hi, T)
-        missing = always_missing or rng.random() < p.freeze_missing_fraction
+        missing = always_missing or (rng.random() < p.freeze_missing_fraction and moves)
         if missing:
             X[s:e, seg] = np.nan
             conf[s:e, seg] = 0.0
@@ -271,7 +277,8 @@ def _limb_failure(X, conf, rng, p, rate_hz, min_events, *, always_missing: bool)
             steps = np.arange(1, e - s + 1, dtype=np.float64)[:, None, None]
             still = rng.random() < p.freeze_still_fraction
             v = np.zeros(3) if still else p.drift_speed_m_s * _unit_vectors(rng, 1)[0]
-            X[s:e, seg] = X[s:e, anchor][:, None] + pose[None] + steps * (v / rate_hz)
+            if moves:
+                X[s:e, seg] = X[s:e, anchor][:, None] + pose[None] + steps * (v / rate_hz)
             conf[s:e, seg] = np.where(conf[s:e, seg] > 0, CONFIDENCE_INFERRED, 0.0)
         mask[s:e, seg] = True
     return mask
@@ -283,6 +290,11 @@ def _freeze(X, conf, rng, p, rate_hz, min_events):
 
 def _dropout(X, conf, rng, p, rate_hz, min_events):
     return _limb_failure(X, conf, rng, p, rate_hz, min_events, always_missing=True)
+
+
+def _flagged(X, conf, rng, p, rate_hz, min_events):
+    """The freeze stretches flagged inferred, the positions left right (same draws as ``freeze``)."""
+    return _limb_failure(X, conf, rng, p, rate_hz, min_events, always_missing=False, moves=False)
 
 
 def _spike(X, conf, rng, p, rate_hz, min_events):
@@ -328,7 +340,7 @@ def _jump(X, conf, rng, p, rate_hz, min_events):
 # order of application in a mix: noise on every sample first, limb failures last (a
 # frozen limb holds a value the sensor reported, a missing one has none)
 _APPLY = {"noise": _noise, "swap": _swap, "stretch": _stretch, "jump": _jump, "spike": _spike,
-          "freeze": _freeze, "dropout": _dropout}
+          "freeze": _freeze, "dropout": _dropout, "flagged": _flagged}
 
 
 def apply_sensor_errors(
