@@ -8,7 +8,7 @@ from pathlib import Path
 from .options import add_list_argument
 
 # streamfix.prior.train.TrainConfig's defaults (that module imports torch; --help must not need it)
-_DEFAULTS = {"epochs": 100, "steps_per_epoch": 60, "latent": 32, "channels": 96}
+_DEFAULTS = {"epochs": 300, "steps_per_epoch": 60, "latent": 32, "channels": 96}
 
 HELP = "train the learned motion prior (temporal-conv autoencoder, canonical body) on the shared recordings; export ONNX + card"
 

@@ -47,11 +47,14 @@ __all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and
 
 
 class TrainConfig:
-    """Hyper-parameters (sizes scaled down from the paper's HDM05 model; about 16 minutes on one shared core)."""
+    """Hyper-parameters (sizes scaled down from the paper's HDM05 model). 300 epochs take about
+    45 minutes on one core (the shipped model's card records its time): the held-out loss was
+    still falling at 100 (0.0060 -> 0.0045 at 300, with the learning-rate drops at 75 % and
+    90 % of the steps), and the longer run is what ships."""
 
     def __init__(
         self,
-        epochs: int = 100,
+        epochs: int = 300,
         seed: int = 0,
         window: int = 64,
         channels: int = 96,
