@@ -166,12 +166,14 @@ def plant_supporting_feet(
     """
     x = np.array(positions, dtype=np.float64, copy=True)
     # a running median ignores isolated wild samples (spikes, a corrupted coordinate):
-    # a floor from raw heights sits on the lowest outliers and makes every foot look lifted
-    ref = running_median(x, odd_window(cfg.median_s, rate_hz))
+    # a floor from raw heights sits on the lowest outliers and makes every foot look lifted.
+    # Plain one-sided medians at the window's ends: a slope through a folding leg's samples
+    # extrapolates the fold (detrended edges: UI-PRMD lower body 52.1 -> 52.5 mm, seam 1.03 -> 1.07)
+    ref = running_median(x, odd_window(cfg.median_s, rate_hz), detrend_edges=False)
     heights = np.stack([ref[:, legs[s, 3]] @ up for s in range(2)], axis=1)  # (T, 2)
     # wild = far from a 5-frame median: isolated corruption, not a fast fold (feet rise
     # 50 cm in 0.5 s in a real squat failure, i.e. a few cm per frame)
-    near = running_median(x[:, legs.ravel()], 5)
+    near = running_median(x[:, legs.ravel()], 5, detrend_edges=False)
     dev = np.linalg.norm(x[:, legs.ravel()] - near, axis=2)
     if np.mean(dev[np.isfinite(dev)] > cfg.wild_m) > cfg.max_wild_fraction:
         # mostly wild samples (not a sensor's folded legs): no floor or anchor can be trusted
