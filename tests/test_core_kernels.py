@@ -70,6 +70,9 @@ def test_running_median_kernel_is_bit_identical(kinect, window):
     assert np.array_equal(got, ref, equal_nan=True)
     assert np.array_equal(filters.running_median(x, window, detrend_edges=False), ref, equal_nan=True)
     assert np.array_equal(filters.running_median(x, window), filters._detrended_edges(x, ref, window), equal_nan=True)
+    # the compiled edges, also beyond the windows they are dispatched for
+    assert np.array_equal(kernels.detrended_edges(x, ref, window), filters._detrended_edges(x, ref, window),
+                          equal_nan=True)
 
 
 def test_pbd_kernel_matches_numpy_reference(kinect):

@@ -381,7 +381,11 @@ def running_median(
         med = kernels.running_median(x, window)  # the same values, one sorted window per channel
     else:
         med = _running_median_numpy(x, window)
-    return _detrended_edges(x, med, window) if detrend_edges else med
+    if not detrend_edges:
+        return med
+    if kernels.COMPILED and x.ndim >= 1 and window <= kernels.DETRENDED_EDGES_MAX_WINDOW:
+        return kernels.detrended_edges(x, med, window)  # the same values in one compiled pass
+    return _detrended_edges(x, med, window)
 
 
 def _detrended_edges(x: np.ndarray, med: np.ndarray, window: int) -> np.ndarray:
