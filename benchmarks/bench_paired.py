@@ -198,8 +198,8 @@ def main(argv: list[str] | None = None) -> int:
             "methods": methods, "skipped": skipped, "data": str(PAIRED)}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "paired.json").write_text(json.dumps(_clean({"run": info, "bars": bars, "temporal_floor": floor, "records": records}),
-                                                        indent=1) + "\n")
+        report = {"run": info, "bars": bars, "temporal_floor": floor, "records": records}
+        (out_dir / "paired.json").write_text(json.dumps(_clean(report), indent=1) + "\n")
         (out_dir / "paired.md").write_text(_markdown(records, bars, info, floor))
         print(f"wrote {out_dir / 'paired.json'} and {out_dir / 'paired.md'}")
     missed = [b for b in bars if not b["ok"]]

@@ -47,7 +47,8 @@ import os
 import numpy as np
 
 __all__ = [
-    "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "detrended_edges", "DETRENDED_EDGES_MAX_WINDOW", "pbd_constraints", "project_bone_lengths_pbd",
+    "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "detrended_edges", "DETRENDED_EDGES_MAX_WINDOW",
+    "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
     "shorth_mode", "live_step", "warm_up",
 ]
