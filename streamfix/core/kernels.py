@@ -22,7 +22,9 @@ into a single compiled loop over frames and channels:
   :func:`streamfix.core.isometry.gauss_newton_step`, a banded Cholesky per frame
   instead of one LAPACK call on a block-diagonal band (same systems, rounding apart);
 * :func:`shorth_mode`: the robust bone-length mode of
-  :func:`streamfix.core.isometry._shorth_mode`, bit for bit;
+  :func:`streamfix.core.isometry._shorth_mode`, bit for bit, and
+  :func:`length_mode_with_support`, that mode refined and its support counted
+  (:func:`streamfix.core.isometry.length_mode_with_support`) from the same sort;
 * :func:`theil_sen_line`: the live path's robust line through the last raw samples
   (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
 * :func:`live_step`: one whole frame of the live path's default chain (that gate, the One
@@ -50,7 +52,7 @@ __all__ = [
     "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "detrended_edges", "DETRENDED_EDGES_MAX_WINDOW",
     "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
-    "shorth_mode", "live_step", "warm_up",
+    "shorth_mode", "length_mode_with_support", "live_step", "warm_up",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -875,30 +877,43 @@ def bone_spread_deviations(positions: np.ndarray, observed: np.ndarray, bones: n
 
 
 # --------------------------------------------------------------------------- shorth mode
+def _sorted_shorth_mode(s, fraction):  # pragma: no cover - compiled
+    """The shorth mode of the ascending finite samples ``s`` (at least one)."""
+    n = len(s)
+    h = max(int(np.ceil(fraction * n)), 1)
+    best = 0
+    best_width = np.inf
+    for i in range(n - h + 1):
+        width = s[i + h - 1] - s[i]
+        if width < best_width:  # the first of equal widths, as argmin
+            best_width = width
+            best = i
+    return s[min(best + (h - 1) // 2, n - 1)]
+
+
+_sorted_shorth_mode_compiled = _jit(_sorted_shorth_mode)
+
+
+def _sorted_finite(values, b, buf):  # pragma: no cover - compiled
+    """Column ``b``'s finite values, sorted ascending in ``buf[:n]``; returns ``n``."""
+    n = 0
+    for t in range(values.shape[0]):
+        v = values[t, b]
+        if np.isfinite(v):
+            buf[n] = v
+            n += 1
+    buf[:n].sort()  # in place: no array allocated per column
+    return n
+
+
+_sorted_finite_compiled = _jit(_sorted_finite)
+
+
 def _shorth_mode_loop(values, fraction, out):  # pragma: no cover - compiled
-    n_rows, n_cols = values.shape
-    buf = np.empty(n_rows)
-    for b in range(n_cols):
-        n = 0
-        for t in range(n_rows):
-            v = values[t, b]
-            if np.isfinite(v):
-                buf[n] = v
-                n += 1
-        if n == 0:
-            out[b] = np.nan
-            continue
-        s = buf[:n]
-        s.sort()  # in place: no array allocated per column
-        h = max(int(np.ceil(fraction * n)), 1)
-        best = 0
-        best_width = np.inf
-        for i in range(n - h + 1):
-            width = s[i + h - 1] - s[i]
-            if width < best_width:  # the first of equal widths, as argmin
-                best_width = width
-                best = i
-        out[b] = s[min(best + (h - 1) // 2, n - 1)]
+    buf = np.empty(values.shape[0])
+    for b in range(values.shape[1]):
+        n = _sorted_finite_compiled(values, b, buf)
+        out[b] = _sorted_shorth_mode_compiled(buf[:n], fraction) if n else np.nan
 
 
 _shorth_mode_compiled = _jit(_shorth_mode_loop)
@@ -914,6 +929,53 @@ def shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
     out = np.empty(values.shape[1])
     _shorth_mode_compiled(values, float(fraction), out)
     return out
+
+
+def _length_mode_loop(values, fraction, refine, tol, lengths, support):  # pragma: no cover - compiled
+    buf = np.empty(values.shape[0])
+    for b in range(values.shape[1]):
+        n = _sorted_finite_compiled(values, b, buf)
+        if n == 0:
+            lengths[b] = np.nan
+            support[b] = 0
+            continue
+        s = buf[:n]
+        est = _sorted_shorth_mode_compiled(s, fraction)
+        if refine >= 0.0:  # the median of the samples within refine of the mode: a run of s
+            lo, hi = 0, n
+            while lo < n and not abs(s[lo] - est) <= refine:
+                lo += 1
+            while hi > lo and not abs(s[hi - 1] - est) <= refine:
+                hi -= 1
+            k = hi - lo
+            if k > 0:
+                est = 0.5 * (s[lo + (k - 1) // 2] + s[lo + k // 2])
+        count = 0
+        for i in range(n):
+            if abs(s[i] - est) <= tol:
+                count += 1
+        lengths[b] = est
+        support[b] = count
+
+
+_length_mode_compiled = _jit(_length_mode_loop)
+
+
+def length_mode_with_support(
+    values: np.ndarray, fraction: float, tolerance_m: float, refine_m: float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`streamfix.core.isometry.length_mode_with_support` of ``values`` ``(T, B)``
+    (metres, NaN = no sample), bit for bit, from one sort per column: the shorth mode,
+    the median of the sorted run within ``refine_m`` of it, the count within
+    ``tolerance_m``. The engine calls it every window on 10 s of bone lengths. Needs numba."""
+    if _length_mode_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.length_mode_with_support needs numba; use isometry's")
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    lengths = np.empty(values.shape[1])
+    support = np.empty(values.shape[1], dtype=np.int64)
+    refine = -1.0 if refine_m is None else float(refine_m)
+    _length_mode_compiled(values, float(fraction), refine, float(tolerance_m), lengths, support)
+    return lengths, support
 
 
 # --------------------------------------------------------------------------- warm-up
@@ -941,6 +1003,7 @@ def warm_up() -> None:
     gauss_newton_update(finite, finite, np.zeros_like(finite), 1.0, 10.0, bones, lengths, np.ones((2, 2)))
     bone_spread_deviations(finite, np.ones((12, 3), dtype=bool), bones, 0.01)
     shorth_mode(x[:, :, 0], 0.5)
+    length_mode_with_support(x[:, :, 0], 0.1, 0.005, 0.02)
     pi, pj = (np.ascontiguousarray(a) for a in np.triu_indices(7, 1))
     theil_sen_line(x[:7], np.arange(7.0), pi, pj)
     state = (np.full((3, 3), np.nan), np.zeros((3, 3)), np.zeros(3), np.zeros(3, dtype=bool))

@@ -297,7 +297,7 @@ def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
 
 def _estimate(x: np.ndarray, obs3: np.ndarray, fit: np.ndarray, resid: np.ndarray, cfg: "PipelineConfig") -> np.ndarray:
     """Stage 2 for one candidate: observed inliers kept, everything else from ``fit``."""
-    inlier = obs3 & (np.abs(np.nan_to_num(resid, nan=np.inf)) <= cfg.outlier_threshold_m)
+    inlier = obs3 & (np.abs(resid) <= cfg.outlier_threshold_m)  # NaN residual: not an inlier
     return np.where(inlier, x, fit)
 
 
@@ -599,7 +599,7 @@ def clean_window(
     info.update(half_width_frames=h, estimator=chosen, bone_spread_m=spreads)
 
     # stage 2: outlying coordinates take the robust fit
-    outlier = obs3 & (np.abs(np.nan_to_num(resid, nan=np.inf)) > cfg.outlier_threshold_m)
+    outlier = obs3 & ~(np.abs(resid) <= cfg.outlier_threshold_m)  # NaN residual: an outlier
     cleaned = np.where(obs3 & ~outlier, x, fit)
     info["outlier_fraction"] = info["contamination"] = float(outlier[obs3].mean()) if obs3.any() else 0.0
 

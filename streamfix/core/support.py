@@ -169,7 +169,10 @@ def plant_supporting_feet(
     # a floor from raw heights sits on the lowest outliers and makes every foot look lifted.
     # Plain one-sided medians at the window's ends: a slope through a folding leg's samples
     # extrapolates the fold (detrended edges: UI-PRMD lower body 52.1 -> 52.5 mm, seam 1.03 -> 1.07)
-    ref = running_median(x, odd_window(cfg.median_s, rate_hz), detrend_edges=False)
+    # only the hips, ankles and feet are read from it: the other joints' medians were 3/4 of its cost
+    ref = np.full_like(x, np.nan)
+    need = np.unique(legs[:, [0, 2, 3]])
+    ref[:, need] = running_median(x[:, need], odd_window(cfg.median_s, rate_hz), detrend_edges=False)
     heights = np.stack([ref[:, legs[s, 3]] @ up for s in range(2)], axis=1)  # (T, 2)
     # wild = far from a 5-frame median: isolated corruption, not a fast fold (feet rise
     # 50 cm in 0.5 s in a real squat failure, i.e. a few cm per frame)

@@ -69,8 +69,8 @@ def undo_limb_swaps(
         keep = np.linalg.norm(x[2:, both] - pred, axis=2)
         cross = np.linalg.norm(x[2:, mirrored] - pred, axis=2)
         ok = np.isfinite(keep).all(axis=1) & np.isfinite(cross).all(axis=1)
-        k = np.where(ok, np.nan_to_num(keep).mean(axis=1), 0.0)
-        c = np.where(ok, np.nan_to_num(cross).mean(axis=1), np.inf)
+        k = np.where(ok, keep.mean(axis=1), 0.0)  # rows with a NaN are not ok: their mean is not used
+        c = np.where(ok, cross.mean(axis=1), np.inf)
         toggle = np.zeros(T, dtype=bool)
         toggle[2:] = ok & (k > cfg.min_offset_m) & (c < cfg.ratio * k)
         if not toggle.any():
