@@ -66,24 +66,33 @@ def plant_window(
     if layout.legs is None or T < 2:
         return x, weight
     legs = layout.legs
-    h = np.zeros((0, J, 3)) if history is None or len(history) == 0 else np.asarray(history, dtype=np.float64)
-    ok = observed if trusted is None else observed & trusted
-    ext = np.concatenate([h, np.where(ok[..., None], x, np.nan)])
+    # only the legs and shoulders are read: the window and its history (seconds of frames)
+    # cut down to them, with the leg and shoulder indices renumbered into the cut
     need = legs.ravel() if layout.shoulders is None else np.concatenate([legs.ravel(), layout.shoulders])
+    used = np.unique(need)
+    sub_legs = np.searchsorted(used, legs)
+    sub_shoulders = None if layout.shoulders is None else np.searchsorted(used, layout.shoulders)
+    sub_need = np.searchsorted(used, need)
+    n_hist = 0 if history is None else len(history)
+    ok = observed if trusted is None else observed & trusted
+    ext = np.empty((n_hist + T, len(used), 3))
+    if n_hist:
+        ext[:n_hist] = np.asarray(history, dtype=np.float64)[:, used]
+    ext[n_hist:] = np.where(ok[:, used, None], x[:, used], np.nan)
     # a frame without every leg joint trusted makes no decision (NaN heights), but keeps its
     # place on the timeline: the minimum run length and the anchors are about time
-    unusable = ~np.isfinite(ext[:, need]).all(axis=(1, 2))
-    ext[np.ix_(unusable, legs.ravel())] = np.nan
-    if (~unusable[len(h):]).sum() < 2:
+    unusable = ~np.isfinite(ext[:, sub_need]).all(axis=(1, 2))
+    ext[np.ix_(unusable, sub_legs.ravel())] = np.nan
+    if (~unusable[n_hist:]).sum() < 2:
         return x, weight
-    up = up_direction(ext[~unusable], legs, layout.shoulders, cfg.axis_snap_cos)
-    fixed, w, _ = plant_supporting_feet(ext, legs, up, rate_hz, _leg_lengths(legs, bones, bone_lengths), cfg)
-    w = w[len(h):]
+    up = up_direction(ext[~unusable], sub_legs, sub_shoulders, cfg.axis_snap_cos)
+    fixed, w, _ = plant_supporting_feet(ext, sub_legs, up, rate_hz, _leg_lengths(legs, bones, bone_lengths), cfg)
+    w = w[n_hist:]
     if not w.any():
         return x, weight
     cols = legs[:, 1:].ravel()
     rows = np.flatnonzero(w > 0)
     out = x.copy()
-    out[np.ix_(rows, cols)] = fixed[len(h):][np.ix_(rows, cols)]
+    out[np.ix_(rows, cols)] = fixed[n_hist:][np.ix_(rows, sub_legs[:, 1:].ravel())]
     weight[np.ix_(rows, cols)] = w[rows, None]
     return out, weight
