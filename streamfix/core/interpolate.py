@@ -72,6 +72,8 @@ def interpolate_linear(
     if x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
     obs = observed_mask(x, observed)
+    if obs.all():  # nothing to fill (most sensor windows): the same result without the gather
+        return x.copy(), np.zeros_like(obs)
     n, n_joints, _ = x.shape
     prev, nxt = neighbour_observations(obs)
     has_prev, has_next = prev >= 0, nxt < n
