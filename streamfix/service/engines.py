@@ -24,7 +24,7 @@ import numpy as np
 from ..frames import SkeletonFrame
 from ..skeletons import Skeleton
 
-__all__ = ["EngineOptions", "PassthroughEngine", "engine_factory", "parse_lookahead", "ENGINES"]
+__all__ = ["EngineOptions", "PassthroughEngine", "engine_factory", "prepare_streamfix_engine", "parse_lookahead", "ENGINES"]
 
 
 @dataclass
@@ -128,4 +128,24 @@ def engine_factory(name: str, options: EngineOptions) -> Callable[[Skeleton, flo
         raise ValueError(f"unknown engine {name!r}; expected one of {', '.join(ENGINES)}") from None
     if name == "streamfix":
         _engine_config(30.0, options)  # bad --window/--hop/--lookahead fail now, not on the first frame
+        prepare_streamfix_engine()
     return lambda skeleton, rate_hz: make(skeleton, rate_hz, options)
+
+
+def prepare_streamfix_engine() -> None:
+    """Do once, before any frame arrives, what the first stream's engine would otherwise do on
+    its first frame: import the engine, compile or load the compiled kernels, load the prior.
+
+    Half a second on the input path (the kernels' cache load alone is ~0.5 s) made the
+    service shed the first 13-37 frames of the first stream from its 50 ms backlog.
+    """
+    from ..core import kernels
+    from ..prior.runtime import load_default_prior
+    from ..streaming.window_solvers import default_window_solver
+
+    default_window_solver()  # imports the engine's solver stack (scipy, pywt: tens of ms)
+    kernels.warm_up()
+    try:
+        load_default_prior()  # the --prior the command chose, else the shipped one; cached per process
+    except (FileNotFoundError, ValueError):
+        pass  # no usable prior: the bridge falls back without it, as it would on the first window
