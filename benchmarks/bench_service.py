@@ -2,9 +2,9 @@
 
 A sender PUSHes frames at 30 Hz (B bodies taken from the real Kinect v2 recordings,
 each body offset in time and space) into ``streamfix serve``; a SUB in this process
-timestamps every ``live`` and ``clean`` frame on arrival. The bodies go as one stream
-while they fit in one frame (``serve`` takes at most 16 bodies a frame and rejects a
-bigger one): 30 bodies are two streams of 15, one service. Measured per run:
+timestamps every ``live`` and ``clean`` frame on arrival. The bodies come as sensors do:
+streams of at most 6 bodies (what one Kinect tracks), all into the one service, so 12
+bodies are 2 streams and 30 bodies are 5. Measured per run:
 
 * ``live`` end-to-end latency (send -> receive, through both sockets), p50/p99;
 * ``clean`` end-to-end latency (lookahead + compute), p50/p99, and the part beyond the
@@ -62,7 +62,6 @@ sys.path.insert(0, str(ROOT))
 
 from streamfix.frames import BodyFrame, SkeletonFrame  # noqa: E402
 from streamfix.io import read_motion  # noqa: E402
-from streamfix.service.limits import Limits  # noqa: E402
 from streamfix.service.metrics import parse_prometheus_text  # noqa: E402
 from streamfix.skeletons import KINECT_V2  # noqa: E402
 from streamfix.transport.wire import (  # noqa: E402
@@ -83,7 +82,7 @@ SCALE_CLEAN_P99_S = 0.550  # clean end-to-end (send -> receive), p99, at most
 SCALE_LIVE_P99_S = 0.005  # live end-to-end through the sockets, p99, under
 DATA = ROOT.parent / "shared" / "data" / "kinect_v2"
 RESULTS = ROOT / "benchmarks" / "results"
-MAX_BODIES_PER_FRAME = Limits().max_bodies_per_frame  # serve's default (and its cap: --max-bodies only lowers it)
+BODIES_PER_SENSOR = 6  # one Kinect v2 / Azure Kinect tracks at most 6 bodies: a stream per sensor
 
 
 def free_port() -> int:
@@ -145,9 +144,8 @@ def pin_cpus(cpu: int | None) -> tuple[set[int] | None, set[int] | None]:
 def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: set[int] | None = None) -> dict:
     pos, conf = bodies_source()
     T = pos.shape[0]
-    # serve takes at most MAX_BODIES_PER_FRAME bodies in one frame (a bigger one is rejected): more bodies
-    # come as several streams (sensors), the bodies spread evenly over them, all into the one service
-    n_streams = -(-n_bodies // MAX_BODIES_PER_FRAME)
+    # more bodies than one sensor tracks come as several streams (sensors), spread evenly, into the one service
+    n_streams = -(-n_bodies // BODIES_PER_SENSOR)
     streams = [(f"bench{s}", range(s, n_bodies, n_streams)) for s in range(n_streams)]
     in_port, out_port, m_port = free_port(), free_port(), free_port()
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
