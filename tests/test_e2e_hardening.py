@@ -256,7 +256,9 @@ def test_overload_is_shed_counted_and_announced_so_live_stays_current(tmp_path, 
     motion = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
     n = 1500
     live = []
-    with _flooded(tmp_path, motion, "hot", n, 300.0, "--overload", "shed") as (sp, sub):  # 6 bodies, 10x
+    # 6 bodies as fast as the socket takes them: 10x real time no longer overloads a service that
+    # is ready before the first frame (its start-up stall used to be what filled the backlog)
+    with _flooded(tmp_path, motion, "hot", n, None, "--overload", "shed") as (sp, sub):
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline:
             m = sp.metrics()
