@@ -301,7 +301,9 @@ def main() -> int:
         if r["bodies"] == 1:
             checks.append(("live compute p99 < 2 ms per body (1 body, service histogram)",
                            r["live_compute_ok"] >= 0.99, f"{r['live_compute_ok']:.1%} of frames under 2 ms"))
-        r["sustained"] = r["clean_out"] == r["frames"] and not r["degraded"] and r["clean_compute_ok"] >= 0.99
+        # degraded at any time of the run, not only at its end (the gauge is a snapshot; the engine recovers)
+        r["ever_degraded"] = bool(r["degraded"] or r["degrade_events"] > 0)
+        r["sustained"] = r["clean_out"] == r["frames"] and not r["ever_degraded"] and r["clean_compute_ok"] >= 0.99
         checks.append((f"{r['bodies']} bodies: clean compute p99 < 100 ms beyond the lookahead (service histogram)",
                        r["clean_compute_ok"] >= 0.99, f"{r['clean_compute_ok']:.1%} of frames under 100 ms"))
     best = max([r["bodies"] for r in rows[1:] if r.get("sustained")], default=0)
@@ -318,7 +320,7 @@ def main() -> int:
             (f"issue 13: {n} bodies: every frame out on clean", scale["clean_out"] == scale["frames"],
              f"{scale['clean_out']}/{scale['frames']} ({scale['shed']:g} shed, {scale['limit_hits']:g} over a limit; "
              f"first live frame out: #{scale['first_live']})"),
-            (f"issue 13: {n} bodies: service not degraded", not scale["degraded"],
+            (f"issue 13: {n} bodies: service never degraded", not scale["ever_degraded"],
              f"degraded gauge {int(scale['degraded'])} at the end, {scale['degrade_events']:g} degrade events "
              f"during the run"),
             (f"issue 13: {n} bodies: clean end-to-end p99 <= {SCALE_CLEAN_P99_S * 1e3:g} ms",
