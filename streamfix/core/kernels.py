@@ -947,9 +947,8 @@ def _length_mode_loop(values, fraction, refine, tol, lengths, support):  # pragm
                 lo += 1
             while hi > lo and not abs(s[hi - 1] - est) <= refine:
                 hi -= 1
-            k = hi - lo
-            if k > 0:
-                est = 0.5 * (s[lo + (k - 1) // 2] + s[lo + k // 2])
+            if hi > lo:  # already sorted: the insertion sort only reads it
+                est = _sorted_median_compiled(s[lo:hi], hi - lo)
         count = 0
         for i in range(n):
             if abs(s[i] - est) <= tol:

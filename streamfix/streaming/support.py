@@ -10,6 +10,7 @@ is missing or not trusted are left alone (their weight is 0) but keep their plac
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -24,6 +25,24 @@ __all__ = ["plant_window", "layout_of"]
 def layout_of(skeleton: Skeleton) -> LimbLayout:
     """:func:`streamfix.limbs.limb_layout`, cached per skeleton (called every window)."""
     return limb_layout(skeleton)
+
+
+class _LegJoints(NamedTuple):
+    """The joints foot support reads (legs, shoulders) and their indices renumbered into that subset."""
+    used: np.ndarray  # (U,) layout joints read, ascending
+    legs: np.ndarray  # (2, 4) hip, knee, ankle, foot per side, indices into ``used``
+    shoulders: np.ndarray | None  # (2,) into ``used``, or None
+    need: np.ndarray  # every leg and shoulder joint, into ``used``
+
+
+@lru_cache(maxsize=64)
+def _leg_joints(skeleton: Skeleton) -> _LegJoints:
+    """:class:`_LegJoints` of a skeleton whose layout has legs, cached (called every window)."""
+    layout = layout_of(skeleton)
+    need = layout.legs.ravel() if layout.shoulders is None else np.concatenate([layout.legs.ravel(), layout.shoulders])
+    used = np.unique(need)
+    shoulders = None if layout.shoulders is None else np.searchsorted(used, layout.shoulders)
+    return _LegJoints(used, np.searchsorted(used, layout.legs), shoulders, np.searchsorted(used, need))
 
 
 def _leg_lengths(legs: np.ndarray, bones: np.ndarray, bone_lengths: np.ndarray | None) -> np.ndarray | None:
@@ -68,11 +87,7 @@ def plant_window(
     legs = layout.legs
     # only the legs and shoulders are read: the window and its history (seconds of frames)
     # cut down to them, with the leg and shoulder indices renumbered into the cut
-    need = legs.ravel() if layout.shoulders is None else np.concatenate([legs.ravel(), layout.shoulders])
-    used = np.unique(need)
-    sub_legs = np.searchsorted(used, legs)
-    sub_shoulders = None if layout.shoulders is None else np.searchsorted(used, layout.shoulders)
-    sub_need = np.searchsorted(used, need)
+    used, sub_legs, sub_shoulders, sub_need = _leg_joints(skeleton)
     n_hist = 0 if history is None else len(history)
     ok = observed if trusted is None else observed & trusted
     ext = np.empty((n_hist + T, len(used), 3))
