@@ -75,10 +75,10 @@ were missing, with a looser excursion limit) and give way to it where the two pa
 this lowers the error (``tests/test_inferred_limbs.py``, ``benchmarks/bench_sensor.py``
 ``freeze``), but an inferred limb that is *right* is then moved toward a fill whose error
 on a swinging arm exceeds the check's threshold (the bench's ``flagged`` kind scores
-that hazard). It stays off: with the 300-epoch prior the bench's average trade is
-favourable, but a walking subject's right arm flagged inferred for 1.5 s was moved
-66 mm on average (2 mm unchecked), and a higher threshold (0.2-0.4 m) that kept it
-within 14 mm no longer freed the frozen arm (150 -> 149 mm).
+that hazard). It stays off: a walking subject's right arm, flagged inferred, is moved by
+several centimetres where unchecked it is within millimetres, and a threshold high
+enough to leave it alone no longer frees a frozen arm (measured on CMU 131_01's walking
+arm, the body of ``tests/test_inferred_limbs.py``, when this default was set).
 
 The engine passes ``history`` (the body's recent clean output, ``(T_h, J, 3)``, NaN
 where it was recovered) to solvers whose ``wants_history`` attribute is True.
