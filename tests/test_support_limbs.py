@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.core.support import SupportConfig, plant_supporting_feet, two_bone_ik, up_direction
+from streamfix.core.support import SupportConfig, plant_supporting_feet, smooth_planted, two_bone_ik, up_direction
 from streamfix.limbs import limb_layout, mirror_index
 from streamfix.skeletons import get_skeleton
 
@@ -112,6 +112,30 @@ def test_one_foot_lifted_or_a_short_flight_is_left_alone():
     jump = truth.copy()
     jump[40:46, :, 1] += 0.25  # a 0.2 s jump flight: shorter than min_run_s
     assert not plant_supporting_feet(jump, legs, up, RATE, cfg=SupportConfig(min_run_s=0.3))[1].any()
+
+
+def test_smooth_planted_smooths_planted_joints_only_and_fades_in():
+    rng = np.random.default_rng(3)
+    T, J = 120, 4
+    t = np.arange(T) / RATE
+    truth = np.zeros((T, J, 3))
+    truth[..., 0] = 0.2 * np.sin(2 * np.pi * 0.3 * t)[:, None]  # slow motion the smoother must keep
+    noisy = truth + rng.normal(scale=0.01, size=truth.shape)
+    noisy[50, 2] = np.nan  # a missing sample stays missing
+    weight = np.zeros((T, J))
+    weight[30:90, 1:3] = 1.0  # joints 1 and 2 planted for 2 s
+    out = smooth_planted(noisy, weight, RATE, 1.0)
+    assert np.array_equal(out[:, [0, 3]], noisy[:, [0, 3]])  # never planted: untouched
+    assert np.isnan(out[50, 2]).all() and np.isfinite(np.delete(out[:, 2], 50, axis=0)).all()
+    mid = slice(40, 80)
+    jit = lambda y: np.nanmean(np.linalg.norm(y[2:] - 2 * y[1:-1] + y[:-2], axis=-1))  # noqa: E731
+    assert jit(out[mid, 1]) < 0.25 * jit(noisy[mid, 1])
+    err = lambda y: np.nanmean(np.linalg.norm(y - truth[mid, 1], axis=-1))  # noqa: E731
+    assert err(out[mid, 1]) < 0.5 * err(noisy[mid, 1])
+    # far from the planted stretch nothing changes; next to it the smoother fades in
+    assert np.array_equal(out[:10, 1], noisy[:10, 1])
+    moved = np.linalg.norm(out[:, 1] - noisy[:, 1], axis=1)
+    assert moved[15:30].max() > 0 and np.array_equal(smooth_planted(noisy, np.zeros((T, J)), RATE, 1.0), noisy, equal_nan=True)
 
 
 def _engine_clean(motion):

@@ -239,9 +239,14 @@ def _local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.nd
 
 
 
-def _fit_local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_local_poly`, compiled when :data:`streamfix.core.kernels.COMPILED` (same math)."""
+def fit_local_quadratic(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-lag weighted local quadratic of ``y`` ``(T, C)`` at every frame, half-width ``h``
+    frames (:func:`_local_poly`; compiled when :data:`streamfix.core.kernels.COMPILED`, same
+    math). Returns ``(fit, support)``."""
     return kernels.local_poly(y, w, h) if kernels.COMPILED else _local_poly(y, w, h)
+
+
+_fit_local_poly = fit_local_quadratic
 def robust_temporal_fit(
     positions: np.ndarray,
     weights: np.ndarray,

@@ -30,6 +30,13 @@ The model, per frame ``t`` (heights along the body's up direction ``u``, metres)
   (the horizontal ankle->foot direction: knees bend the way the feet point), and
   blended in with the same weight.
 
+After the window is solved, :func:`smooth_planted` runs a longer zero-lag smoother over
+the planted joints (knees, ankles, feet while planted). Why: a planted leg is a guess
+built from the sensor's jittery hip (the knee's inverse kinematics amplifies it near a
+straight leg) and a weight that follows the sensor's foot heights, so it carries jitter
+that no real motion has; against Vicon on UI-PRMD the planted frames held most of the
+clean output's excess jitter over the reference.
+
 Arrays: positions ``(T, J, 3)`` metres, finite where used; ``legs`` ``(2, 4)`` joint
 indices (hip, knee, ankle, foot) for left and right, see :mod:`streamfix.limbs`.
 """
@@ -48,6 +55,7 @@ __all__ = [
     "support_weight",
     "two_bone_ik",
     "plant_supporting_feet",
+    "smooth_planted",
 ]
 
 
@@ -64,6 +72,7 @@ class SupportConfig:
     max_wild_fraction: float = 0.35  # leg samples > wild_m from a 5-frame median: above this, do nothing
     wild_m: float = 0.10
     axis_snap_cos: float = 0.85  # snap the up direction to a coordinate axis within ~32 deg
+    planted_smooth_s: float = 1.0  # span of the smoother over planted joints (0 = none)
 
 
 def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray | None, snap_cos: float = 0.85) -> np.ndarray:
@@ -218,3 +227,34 @@ def plant_supporting_feet(
         x[sel, ankle] = A_new[sel]
         x[sel, foot] = F_new[sel]
     return x, w, floor
+
+
+def smooth_planted(positions: np.ndarray, weight: np.ndarray, rate_hz: float, span_s: float) -> np.ndarray:
+    """``positions`` ``(T, J, 3)`` m with the joints foot support planted smoothed in time.
+
+    ``weight`` ``(T, J)``: the plant's correction weight (0 = untouched). Each joint-frame
+    takes a zero-lag local quadratic of span ``span_s`` (s) with share
+    ``min(1, 2 * f)``, f = the fraction of planted frames within that span, so the
+    smoother fades in and out around a planted stretch instead of switching on. Joints
+    never planted are returned unchanged.
+    """
+    from scipy.ndimage import correlate1d
+
+    from .pipeline import fit_local_quadratic
+
+    x = np.asarray(positions, dtype=np.float64)
+    h = int(round(span_s * rate_hz / 2))
+    cols = np.flatnonzero((np.asarray(weight) > 0).any(axis=0))
+    if h < 1 or len(cols) == 0:
+        return x
+    T = x.shape[0]
+    sub = x[:, cols]
+    y = sub.reshape(T, -1)
+    ok = np.isfinite(y)
+    fit, _ = fit_local_quadratic(np.where(ok, y, 0.0), ok.astype(np.float64), h)
+    planted = (np.asarray(weight)[:, cols] > 0).astype(np.float64)
+    share = np.clip(2.0 * correlate1d(planted, np.full(2 * h + 1, 1.0 / (2 * h + 1)), axis=0, mode="nearest"), 0.0, 1.0)
+    share = np.repeat(share, 3, axis=1) * ok
+    out = x.copy()
+    out[:, cols] = (y + share * (fit - np.where(ok, y, 0.0))).reshape(sub.shape)
+    return out

@@ -445,6 +445,12 @@ class BridgingWindowSolver:
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
+        if self.foot_support and skeleton is not None and weight.any():
+            # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
+            from ..core.support import SupportConfig, smooth_planted
+
+            res = _with_recovered(res, np.zeros_like(weight, dtype=bool))
+            res.positions = smooth_planted(res.positions, weight, rate_hz, SupportConfig().planted_smooth_s)
         return res if planted is None else _with_recovered(res, planted)
 
     def _verify_inferred(self, x, conf, obs, bones, rate_hz, history, skeleton: Skeleton):
