@@ -73,10 +73,26 @@ def test_training_is_deterministic_for_a_seed(shared_data):
 
     takes = [canonical_take(load_take(shared_data / d / f), "kinect_v2")
              for d, f in (("kinect_v2", "Ges01_wavehand.csv"), ("xia_bvh", "angry_13_000.bvh"))]
-    cfg = TrainConfig(epochs=1, steps_per_epoch=2, batch=4, channels=8, latent=4)
-    runs = [train(takes, takes[:1], cfg, log=lambda s: None) for _ in range(2)]
-    for (m1, h1), (m2, h2) in [runs]:
+    runs = [train(takes, takes[:1], TrainConfig(epochs=1, steps_per_epoch=3, batch=4, channels=8, latent=4,
+                                                workers=workers), log=lambda s: None)
+            for workers in (0, 0, 2)]  # batches drawn in worker processes are the same batches
+    for (m1, h1), (m2, h2) in [runs[:2], runs[::2]]:
         assert h1["train_loss"] == h2["train_loss"]
         for (k, a), b in zip(m1.state_dict().items(), m2.state_dict().values()):
             assert torch.equal(a, b), k
         assert np.isfinite(h1["held_out_loss"]).all()
+
+
+def test_source_shares_decide_where_batches_come_from():
+    """``TrainConfig.shares`` / ``--share``: a source's share of the draws follows its weight, any number of takes."""
+    import numpy as np
+
+    from streamfix.prior.data import Take, source_weights
+
+    def take(name: str, source: str, frames: int) -> Take:
+        return Take(name, np.zeros((frames, 20, 3)), np.ones((frames, 20), bool), 30.0, source)
+
+    takes = [take("a", "bvh", 30), take("b", "uiprmd_vicon", 300), take("c", "uiprmd_vicon", 600)]
+    p = source_weights(takes, {"bvh": 0.75, "uiprmd_vicon": 0.25})
+    np.testing.assert_allclose(p, [0.75, 0.25 / 3, 0.5 / 3])
+    assert source_weights(takes, {"bvh": 0.0, "uiprmd_vicon": 1.0})[0] == 0.0

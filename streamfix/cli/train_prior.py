@@ -23,6 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--latent", type=int, default=_DEFAULTS["latent"], help="latent size L")
     parser.add_argument("--channels", type=int, default=_DEFAULTS["channels"], help="feature maps per conv layer")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device to train on, e.g. cpu or cuda (same batches; weights differ by float rounding)")
+    parser.add_argument("--workers", type=int, default=0,
+                        help="processes drawing training batches beside the training loop (same batches for any number)")
+    parser.add_argument("--share", action="append", default=[], metavar="SOURCE=W",
+                        help="a source's share of each batch, e.g. bvh=0.2 (repeatable; the rest keep "
+                             "streamfix.prior.data.SOURCE_SHARES; shares are renormalised)")
     add_list_argument(parser, "--held-out", metavar="NAME",
                       help="take names or groups to hold out, as 'a b' or 'a,b' "
                            "(default: 131_02 neutral_01_000 Ges04_comehere uiprmd_s06)")
@@ -39,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     import warnings
 
     warnings.filterwarnings("ignore", message=".*padding='same'.*")
-    from streamfix.prior.data import HELD_OUT
+    from streamfix.prior.data import HELD_OUT, SOURCE_SHARES
     from streamfix.prior.train import TrainConfig, train_and_export
 
     data = Path(args.data)
@@ -47,8 +54,24 @@ def run(args: argparse.Namespace) -> int:
         print(f"train-prior: data directory {data} not found", file=sys.stderr)
         return 2
     held = tuple(args.held_out) if args.held_out else HELD_OUT
+    shares = dict(SOURCE_SHARES)
+    for item in args.share:
+        source, _, weight = item.partition("=")
+        try:
+            if source not in SOURCE_SHARES:
+                raise ValueError(f"unknown source {source!r} (sources: {', '.join(SOURCE_SHARES)})")
+            shares[source] = float(weight)
+            if not shares[source] >= 0:
+                raise ValueError("a share is a number >= 0")
+        except ValueError as exc:
+            print(f"train-prior: --share {item}: {exc}", file=sys.stderr)
+            return 2
+    if args.workers < 0:
+        print(f"train-prior: --workers {args.workers}: must be >= 0", file=sys.stderr)
+        return 2
     cfg = TrainConfig(epochs=args.epochs, seed=args.seed, channels=args.channels, latent=args.latent,
-                      steps_per_epoch=args.steps, threads=args.threads)
+                      steps_per_epoch=args.steps, threads=args.threads, shares=shares, device=args.device,
+                      workers=args.workers)
     train_and_export(data, args.out, cfg, held_out=held, log=lambda s: print(s, flush=True), evaluate=not args.no_eval,
                      kinect_v1=not args.no_kinect_v1)
     return 0

@@ -73,11 +73,13 @@ def split_takes(takes: list[Take], held_out: tuple[str, ...] = HELD_OUT) -> tupl
     return [t for t, o in zip(takes, out) if not o], [t for t, o in zip(takes, out) if o]
 
 
-def source_weights(takes: list[Take]) -> np.ndarray:
-    """Probability of drawing each take: its source's ``SOURCE_SHARES`` share, split by duration within the source."""
+def source_weights(takes: list[Take], shares: dict[str, float] | None = None) -> np.ndarray:
+    """Probability of drawing each take: its source's share (``shares``, default ``SOURCE_SHARES``; 0.05 for a
+    source not named), split by duration within the source."""
+    shares = SOURCE_SHARES if shares is None else shares
     dur = np.array([t.duration_s for t in takes])
     src = [t.source for t in takes]
-    share = {s: SOURCE_SHARES.get(s, 0.05) for s in set(src)}
+    share = {s: shares.get(s, 0.05) for s in set(src)}
     total = {s: dur[[x == s for x in src]].sum() for s in share}
     p = np.array([share[s] * d / total[s] for s, d in zip(src, dur)])
     return p / p.sum()
@@ -177,12 +179,13 @@ def make_batch(
     window: int = 64,
     augment: bool = True,
     template: np.ndarray | None = None,
+    shares: dict[str, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(y_in, mask_in, y_target, mask_target), float32, normalised with the *input* window's root and scale.
 
-    Takes are drawn by ``source_weights``.
+    Takes are drawn by ``source_weights`` with ``shares`` (default ``SOURCE_SHARES``).
     """
-    idx = rng.choice(len(takes), size=batch, p=source_weights(takes))
+    idx = rng.choice(len(takes), size=batch, p=source_weights(takes, shares))
     n_j = takes[0].positions.shape[1]
     y_in = np.zeros((batch, window, n_j, 3), np.float32)
     y_tg = np.zeros_like(y_in)

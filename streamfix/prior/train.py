@@ -10,8 +10,10 @@ the loss is the masked Euclidean loss over the joint-frames the *data* observed:
 with X^ = D(E(A'Y)) (A' = the extra drop). AdamW (lr 2e-3, divided by 10 after 75 %
 and 90 % of the steps, as in the paper's Appendix A.1, scaled to our epochs).
 
-Deterministic for a seed: numpy ``Generator(seed)`` draws every window and mask,
-``torch.manual_seed(seed)`` the weights, one torch thread.
+Deterministic for a seed: numpy ``Generator((seed, k))`` draws batch k's windows and masks
+(whichever process draws it), ``torch.manual_seed(seed)`` the weights and the input noise,
+one torch thread on the CPU. ``TrainConfig.device="cuda"`` trains the same batches on a GPU
+(weights equal up to float rounding); ``workers`` draws batches in parallel processes.
 """
 from __future__ import annotations
 
@@ -47,10 +49,15 @@ __all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and
 
 
 class TrainConfig:
-    """Hyper-parameters (sizes scaled down from the paper's HDM05 model). 300 epochs take about
-    45 minutes on one core (the shipped model's card records its time): the held-out loss was
-    still falling at 100 (0.0060 -> 0.0045 at 300, with the learning-rate drops at 75 % and
-    90 % of the steps), and the longer run is what ships."""
+    """Hyper-parameters (sizes scaled down from the paper's HDM05 model). The held-out loss was
+    still falling at 100 epochs (the learning rate drops at 75 % and 90 % of the steps); the
+    shipped model's card records its epochs and training time.
+
+    ``shares`` is each source's share of a batch (``data.SOURCE_SHARES`` by default). ``device``
+    ("cpu", "cuda") and ``workers`` (processes drawing batches beside the training loop) change
+    speed only: batch k is drawn from its own generator ``Generator((seed, k))``, so the batches
+    are the same for any number of workers, and the weights differ between devices by float
+    rounding alone."""
 
     def __init__(
         self,
@@ -66,14 +73,67 @@ class TrainConfig:
         threads: int = 1,
         weight_decay: float = 0.01,
         input_noise: float = 0.01,
+        shares: dict[str, float] | None = None,
+        device: str = "cpu",
+        workers: int = 0,
     ):
         self.weight_decay, self.input_noise = weight_decay, input_noise
         self.epochs, self.seed, self.window = epochs, seed, window
         self.channels, self.latent, self.levels = channels, latent, levels
         self.batch, self.steps_per_epoch, self.lr, self.threads = batch, steps_per_epoch, lr, threads
+        self.shares = dict(SOURCE_SHARES if shares is None else shares)
+        self.device, self.workers = device, workers
 
     def as_dict(self) -> dict:
         return dict(vars(self))
+
+
+class _Batches:
+    """The training batches in order: batch k from ``Generator((seed, k))``, drawn in this process
+    or, with ``workers`` > 0, by forked worker processes a bounded number of batches ahead."""
+
+    def __init__(self, takes: list[Take], config: TrainConfig, bones: np.ndarray, ref: np.ndarray, template: np.ndarray):
+        self._args = (takes, config, bones, ref, template)
+        self._pool = None
+        if config.workers > 0:
+            import multiprocessing
+
+            global _WORKER_ARGS
+            _WORKER_ARGS = self._args  # inherited by the forked workers
+            self._pool = multiprocessing.get_context("fork").Pool(config.workers)
+
+    def __iter__(self):
+        total = self._args[1].epochs * self._args[1].steps_per_epoch
+        if self._pool is None:
+            for k in range(total):
+                yield _draw_batch(k, self._args)
+            return
+        ahead = 4 * self._args[1].workers
+        pending = [self._pool.apply_async(_worker_batch, (k,)) for k in range(min(ahead, total))]
+        for k in range(total):
+            batch = pending[k].get()
+            pending[k] = None
+            if k + ahead < total:
+                pending.append(self._pool.apply_async(_worker_batch, (k + ahead,)))
+            yield batch
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool = None
+
+
+_WORKER_ARGS: tuple | None = None
+
+
+def _draw_batch(k: int, args: tuple) -> tuple[np.ndarray, ...]:
+    takes, config, bones, ref, template = args
+    rng = np.random.default_rng((config.seed, k))
+    return make_batch(takes, rng, config.batch, bones, ref, config.window, template=template, shares=config.shares)
+
+
+def _worker_batch(k: int) -> tuple[np.ndarray, ...]:
+    return _draw_batch(k, _WORKER_ARGS)
 
 
 def held_out_windows(
@@ -117,11 +177,13 @@ def train(
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     gen = torch.Generator().manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
+    device = torch.device(config.device)
     bones = CANONICAL_BONES
     ref = mean_bone_lengths(train_takes, bones)
     template = facing_template(train_takes, bones, ref)
+    batches = _Batches(train_takes, config, bones, ref, template)  # workers fork before the device is touched
     model = TemporalAutoencoder(len(CANONICAL_JOINTS), config.window, config.channels, config.latent, config.levels)
+    model.to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     total = config.epochs * config.steps_per_epoch
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, [int(0.75 * total), int(0.9 * total)], gamma=0.1)
@@ -130,35 +192,42 @@ def train(
     held = held_out_windows(monitor, bones, ref, config.window, 0.5, config.seed + 1, template) if monitor else None
     history: dict = {"epoch": [], "train_loss": [], "held_out_loss": [], "held_out_rmse_dropped_m": []}
     t_start = time.perf_counter()
-    for epoch in range(1, config.epochs + 1):
-        model.train()
-        losses = []
-        for _ in range(config.steps_per_epoch):
-            yi, mi, yt, mt = (torch.from_numpy(a) for a in make_batch(train_takes, rng, config.batch, bones, ref, config.window, template=template))
-            if config.input_noise > 0:  # sensor-like jitter on the encoder's input only (normalised units ~ m)
-                yi = yi + config.input_noise * torch.randn(yi.shape, generator=gen) * mi.unsqueeze(-1)
-            loss = _masked_loss(model(yi, mi), yt, mt)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            losses.append(loss.item())
-        msg = f"epoch {epoch:3d}/{config.epochs}  train loss {np.mean(losses):.5f}"
-        history["epoch"].append(epoch)
-        history["train_loss"].append(float(np.mean(losses)))
-        if held is not None and len(held[0]):
-            model.eval()
-            with torch.no_grad():
-                yi, mi, yt, mt, sc = (torch.from_numpy(a) for a in held)
-                x = model(yi, mi)
-                hl = float(_masked_loss(x, yt, mt))
-                dropped = (mt > 0) & (mi == 0)
-                err2 = ((x - yt) ** 2).sum(-1) * sc[:, None, None] ** 2
-                rmse = float(torch.sqrt(err2[dropped].mean())) if dropped.any() else float("nan")
-            history["held_out_loss"].append(hl)
-            history["held_out_rmse_dropped_m"].append(rmse)
-            msg += f"  held-out loss {hl:.5f}  held-out D(E(Y)) RMSE on dropped joints (OTP 50%) {100 * rmse:.2f} cm"
-        log(msg + f"  [{time.perf_counter() - t_start:.0f} s]")
+    stream = iter(batches)
+    try:
+        for epoch in range(1, config.epochs + 1):
+            model.train()
+            losses = []
+            for _ in range(config.steps_per_epoch):
+                yi, mi, yt, mt = (torch.from_numpy(a) for a in next(stream))
+                if config.input_noise > 0:  # sensor-like jitter on the encoder's input only (normalised units ~ m)
+                    yi = yi + config.input_noise * torch.randn(yi.shape, generator=gen) * mi.unsqueeze(-1)
+                yi, mi, yt, mt = (a.to(device) for a in (yi, mi, yt, mt))
+                loss = _masked_loss(model(yi, mi), yt, mt)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                sched.step()
+                losses.append(loss.detach())
+            train_loss = float(torch.stack(losses).mean())
+            msg = f"epoch {epoch:3d}/{config.epochs}  train loss {train_loss:.5f}"
+            history["epoch"].append(epoch)
+            history["train_loss"].append(train_loss)
+            if held is not None and len(held[0]):
+                model.eval()
+                with torch.no_grad():
+                    yi, mi, yt, mt, sc = (torch.from_numpy(a).to(device) for a in held)
+                    x = model(yi, mi)
+                    hl = float(_masked_loss(x, yt, mt))
+                    dropped = (mt > 0) & (mi == 0)
+                    err2 = ((x - yt) ** 2).sum(-1) * sc[:, None, None] ** 2
+                    rmse = float(torch.sqrt(err2[dropped].mean())) if dropped.any() else float("nan")
+                history["held_out_loss"].append(hl)
+                history["held_out_rmse_dropped_m"].append(rmse)
+                msg += f"  held-out loss {hl:.5f}  held-out D(E(Y)) RMSE on dropped joints (OTP 50%) {100 * rmse:.2f} cm"
+            log(msg + f"  [{time.perf_counter() - t_start:.0f} s]")
+    finally:
+        batches.close()
+    model.to("cpu")
     history["seconds"] = round(time.perf_counter() - t_start, 1)
     history["reference_bone_lengths_m"] = ref.tolist()
     history["facing_template"] = np.round(template, 5).tolist()
@@ -375,7 +444,7 @@ def train_and_export(
     sources = {}
     for t in train_takes:
         rec = sources.setdefault(t.source, {"takes": 0, "minutes": 0.0, "licence": SOURCE_LICENCES.get(t.source, "?"),
-                                            "batch_share": SOURCE_SHARES.get(t.source)})
+                                            "batch_share": config.shares.get(t.source)})
         rec["takes"] += 1
         rec["minutes"] += t.duration_s / 60
     for rec in sources.values():
