@@ -41,7 +41,11 @@ Latencies are in ms; ``x base`` is the live p99 over the passthrough baseline's.
 Writes ``benchmarks/results/service.json`` (``--json``; the rows, the bars, the CPUs
 pinned and the git commit).
 
-    python benchmarks/bench_service.py [--seconds 12] [--bodies 1,12,30] [--warmup 3] [--cpu N] [--json OUT]
+``--solver-process`` runs ``serve --solver-process`` (each stream's windows solved in a child
+process, :mod:`streamfix.streaming.solver_process`; the children share the pinned core);
+the results record which was used.
+
+    python benchmarks/bench_service.py [--seconds 12] [--bodies 1,12,30] [--warmup 3] [--cpu N] [--solver-process] [--json OUT]
 """
 from __future__ import annotations
 
@@ -142,7 +146,8 @@ def pin_cpus(cpu: int | None) -> tuple[set[int] | None, set[int] | None]:
     return {cpu}, own
 
 
-def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: set[int] | None = None) -> dict:
+def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: set[int] | None = None,
+        solver_process: bool = False) -> dict:
     pos, conf = bodies_source()
     T = pos.shape[0]
     # more bodies than one sensor tracks come as several streams (sensors), spread evenly, into the one service
@@ -154,7 +159,8 @@ def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: s
     proc = subprocess.Popen(
         [sys.executable, "-m", "streamfix", "serve", "--source", f"tcp://127.0.0.1:{in_port}",
          "--out", f"tcp://127.0.0.1:{out_port}", "--metrics-port", str(m_port), "--status-interval", "0",
-         "--engine", engine, "--lookahead", str(LOOKAHEAD_S), "--log-level", "WARNING"],
+         "--engine", engine, "--lookahead", str(LOOKAHEAD_S), "--log-level", "WARNING"]
+        + (["--solver-process"] if solver_process and engine == "streamfix" else []),
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=str(ROOT),
         preexec_fn=(lambda: os.sched_setaffinity(0, serve_cpus)) if serve_cpus else None,
     )
@@ -233,6 +239,7 @@ def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: s
                               if skip <= key[1] < tail and key in recv[kind]])
     return {
         "engine": engine,
+        "solver_process": bool(solver_process and engine == "streamfix"),
         "bodies": n_bodies,
         "streams": n_streams,
         "frames": len(sent_ns),  # over all streams
@@ -266,13 +273,15 @@ def main() -> int:
     ap.add_argument("--cpu", type=int, default=None,
                     help="CPU to pin serve to (default: the last one this process may use; this process gets "
                          "the others; nothing is pinned when only one CPU is available)")
+    ap.add_argument("--solver-process", action="store_true",
+                    help="serve --solver-process: windows solved in a child process per stream")
     ap.add_argument("--json", default=str(RESULTS / "service.json"),
                     help="where to write the results (default benchmarks/results/service.json; '' = nowhere)")
     args = ap.parse_args()
     counts = [int(b) for b in args.bodies.split(",")]
     serve_cpus, own_cpus = pin_cpus(args.cpu)  # before any thread (ZeroMQ's included) starts
     base = run("passthrough", 1, args.seconds, args.warmup, serve_cpus)
-    rows = [base] + [run("streamfix", b, args.seconds, args.warmup, serve_cpus) for b in counts]
+    rows = [base] + [run("streamfix", b, args.seconds, args.warmup, serve_cpus, args.solver_process) for b in counts]
 
     def ms(v: float) -> str:
         return f"{v * 1e3:8.2f}"
@@ -280,7 +289,9 @@ def main() -> int:
     pinning = (f"serve pinned to CPU {sorted(serve_cpus)[0]}, sender/receiver to CPU(s) "
                f"{','.join(map(str, sorted(own_cpus)))}" if serve_cpus else
                "one CPU available: nothing pinned, sender/receiver share the service's core")
-    print(f"streamfix serve over loopback, {RATE_HZ:g} Hz, {args.seconds:g} s per run, lookahead {LOOKAHEAD_S} s; "
+    solver = "a child process per stream (--solver-process)" if args.solver_process else "the worker thread"
+    print(f"streamfix serve over loopback, {RATE_HZ:g} Hz, {args.seconds:g} s per run, lookahead {LOOKAHEAD_S} s, "
+          f"windows solved in {solver}; "
           f"{pinning}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
           f"(others' load inflates every number)")
     print(f"{'engine':<12}{'bodies':>7}{'streams':>8}{'out l/c':>12}{'live p50':>10}{'live p99':>10}{'x base':>8}"
@@ -343,7 +354,7 @@ def main() -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps({
             "run": {"commit": _git_commit(), "rate_hz": RATE_HZ, "seconds": args.seconds, "warmup_s": args.warmup,
-                    "lookahead_s": LOOKAHEAD_S, "bodies": counts,
+                    "lookahead_s": LOOKAHEAD_S, "bodies": counts, "solver_process": args.solver_process,
                     "serve_cpus": sorted(serve_cpus) if serve_cpus else None,
                     "bench_cpus": sorted(own_cpus) if own_cpus else None,
                     "load_average": os.getloadavg()[0], "cpu_count": os.cpu_count()},

@@ -66,6 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--engine", default="streamfix", choices=("streamfix", "passthrough"),
                    help="per-stream engine; passthrough copies input to live/clean (baseline, default %(default)s)")
     p.add_argument("--sync", action="store_true", help="solve windows on the input thread (no worker thread)")
+    p.add_argument("--solver-process", action="store_true",
+                   help="solve each stream's windows in a child process (the worker thread waits without the "
+                        "GIL, so the live path is not held up by the solve; same output)")
     p.add_argument("--sndhwm", type=int, default=1000, help="PUB send high-water mark per subscriber (messages)")
     p.add_argument("--linger-ms", type=int, default=2000, help="on exit, wait this long for queued messages to leave")
     p.add_argument("--meta-interval", type=float, default=1.0, help="seconds between repeated skeleton messages")
@@ -191,7 +194,8 @@ def run(args: argparse.Namespace) -> int:
         # and a source that cannot open, e.g. no camera attached, should say so at once)
         seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
         options = EngineOptions(
-            window=args.window, hop=args.hop, lookahead=seconds, lookahead_frames=frames, threaded=not args.sync
+            window=args.window, hop=args.hop, lookahead=seconds, lookahead_frames=frames, threaded=not args.sync,
+            solver_process=args.solver_process,
         )
     except ValueError as exc:
         print(f"streamfix serve: bad engine settings: {exc}", file=sys.stderr)
@@ -248,6 +252,12 @@ def run(args: argparse.Namespace) -> int:
         if curve is not None:
             curve.stop()
         print(f"streamfix serve: bad engine settings: {exc}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:  # a solver process that cannot start (--solver-process)
+        source.close()
+        if curve is not None:
+            curve.stop()
+        print(f"streamfix serve: cannot start the engine: {exc}", file=sys.stderr)
         return 2
     try:
         publisher = ServicePublisher(

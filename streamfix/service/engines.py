@@ -36,6 +36,7 @@ class EngineOptions:
     lookahead: float | None = None  # seconds of lookahead for the clean output
     lookahead_frames: int | None = None  # or frames (wins if given)
     threaded: bool = True           # solve windows off the input thread
+    solver_process: bool = False    # ... in a child process per engine (threaded only; solver_process.py)
 
 
 class PassthroughEngine:
@@ -70,7 +71,17 @@ class PassthroughEngine:
 def _streamfix_engine(skeleton: Skeleton, rate_hz: float, options: EngineOptions):
     from ..streaming.engine import StreamEngine  # imported lazily: scipy/pywt cost
 
-    return StreamEngine(skeleton, _engine_config(rate_hz, options))
+    solver = None
+    if options.solver_process:
+        from ..streaming.solver_process import ProcessWindowSolver
+
+        solver = ProcessWindowSolver()  # takes the child prepare_streamfix_engine started, else forks one
+    try:
+        return StreamEngine(skeleton, _engine_config(rate_hz, options), solver)
+    except BaseException:
+        if solver is not None:
+            solver.close()
+        raise
 
 
 def _engine_config(rate_hz: float, options: EngineOptions):
@@ -91,6 +102,8 @@ def _engine_config(rate_hz: float, options: EngineOptions):
         kwargs["lookahead_s"] = float(options.lookahead)
     if "threaded" in fields:
         kwargs["threaded"] = bool(options.threaded)
+    if options.solver_process and not options.threaded:
+        raise ValueError("a solver process serves the engine's worker thread: it needs threaded mode (not --sync)")
     unknown = [k for k in kwargs if fields and k not in fields]
     if unknown:
         raise ValueError(f"the streaming engine's config has no {', '.join(unknown)} setting")
@@ -128,13 +141,16 @@ def engine_factory(name: str, options: EngineOptions) -> Callable[[Skeleton, flo
         raise ValueError(f"unknown engine {name!r}; expected one of {', '.join(ENGINES)}") from None
     if name == "streamfix":
         _engine_config(30.0, options)  # bad --window/--hop/--lookahead fail now, not on the first frame
-        prepare_streamfix_engine()
+        prepare_streamfix_engine(solver_process=options.solver_process)
     return lambda skeleton, rate_hz: make(skeleton, rate_hz, options)
 
 
-def prepare_streamfix_engine() -> None:
+def prepare_streamfix_engine(solver_process: bool = False) -> None:
     """Do once, before any frame arrives, what the first stream's engine would otherwise do on
-    its first frame: import the engine, compile or load the compiled kernels, load the prior.
+    its first frame: import the engine, compile or load the compiled kernels, load the prior;
+    with ``solver_process``, also start the solver processes' forkserver and the first
+    engine's child (:func:`~streamfix.streaming.solver_process.prepare_solver_process`),
+    which warm up beside this process.
 
     Half a second on the input path (the kernels' cache load alone is ~0.5 s) made the
     service shed the first 13-37 frames of the first stream from its 50 ms backlog.
@@ -143,9 +159,16 @@ def prepare_streamfix_engine() -> None:
     from ..prior.runtime import load_default_prior
     from ..streaming.window_solvers import default_window_solver
 
+    child_ready = None
+    if solver_process:
+        from ..streaming.solver_process import prepare_solver_process
+
+        child_ready = prepare_solver_process()
     default_window_solver()  # imports the engine's solver stack (scipy, pywt: tens of ms)
     kernels.warm_up()
     try:
         load_default_prior()  # the --prior the command chose, else the shipped one; cached per process
     except (FileNotFoundError, ValueError):
         pass  # no usable prior: the bridge falls back without it, as it would on the first window
+    if child_ready is not None:
+        child_ready()

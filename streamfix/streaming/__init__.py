@@ -9,6 +9,9 @@
   :mod:`.solver_api` (what a window solver takes and returns) and :mod:`.window_solvers`
   (the solvers it ships).
 * :mod:`.offline` -- :func:`clean_motion`: a whole motion through the same engine.
+* :mod:`.solver_process` -- :class:`~.solver_process.ProcessWindowSolver`: any window solver
+  run in a child process, so the engine's worker thread waits without the GIL and the live
+  path is not held up by the solve (``serve --solver-process``); same output.
 * :mod:`.bridging` -- the default window solver: joints missing for >= 1/3 of a window
   and blackouts are filled (PCA on the body's clean history, the prior's D(z*) for
   Kinect v2) before ``clean_window``, and flagged recovered.

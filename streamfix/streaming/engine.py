@@ -323,11 +323,15 @@ class StreamEngine:
         return out
 
     def close(self) -> None:
-        """Stop the worker thread (threaded mode); pending windows are not waited for."""
+        """Stop the worker thread (threaded mode; pending windows are not waited for) and
+        close the window solver if it has resources to free (a solver process)."""
         if self._thread is not None:
             self._queue.put(None)
             self._thread.join(timeout=5.0)
             self._thread = None
+        close = getattr(self.solver, "close", None)
+        if close is not None:
+            close()
 
     def __enter__(self) -> "StreamEngine":
         return self
