@@ -24,7 +24,7 @@ from streamfix.io.kinect_csv import read_kinect_csv
 from streamfix.skeletons import KINECT_V2, Skeleton
 from streamfix.transport.wire import encode_frame, encode_skeleton_message, topic_for
 
-from test_e2e_harness import connect_and_wait, connected_subscriber, serve
+from test_e2e_harness import connect_and_wait, connected_subscriber, serve, wait_metric
 
 U64_MAX = 2**64 - 1
 PERIOD_NS = 33_333_333
@@ -74,16 +74,6 @@ def _flooded(tmp_path, motion, stream: str, n: int, per_s: float | None, *serve_
         finally:
             push.close(linger=0)
             sub.close()
-
-
-def _wait_metric(sp, key: str, at_least: float, timeout: float = 30.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while True:
-        m = sp.metrics()
-        if m.get(key, 0.0) >= at_least or time.monotonic() > deadline:
-            return m
-        assert sp.proc.poll() is None, f"serve died:\n{sp.stderr[-3000:]}"
-        time.sleep(0.1)
 
 
 def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_through(tmp_path, shared_data):
@@ -140,8 +130,8 @@ def test_every_reproduction_is_contained_counted_and_a_valid_stream_still_comes_
             # 6. (after the others: it fills every stream slot) 300 stream ids
             for s in range(300):
                 send(topic_for("raw", f"many{s}"), _frame(f"many{s}", 0, 0, [_body(motion, s)]))
-            m = _wait_metric(sp, 'streamfix_limit_hits_total{limit="streams"}', 1)
-            m = _wait_metric(sp, "streamfix_input_disconnects_total", 1)
+            m = wait_metric(sp, 'streamfix_limit_hits_total{limit="streams"}', 1)
+            m = wait_metric(sp, "streamfix_input_disconnects_total", 1)
             huge.close(linger=0)
             status = _proc_status(sp.proc.pid)
             drain(2.0)
@@ -296,7 +286,7 @@ def test_a_new_stream_loses_no_frame_while_the_service_builds_its_engine(tmp_pat
             for k in range(n):  # one body at 30 Hz, as a sensor sends it
                 push.send_multipart([topic_for("raw", "fresh"), _frame("fresh", k, k * PERIOD_NS, [_body(motion, k, 0, 0.0)])])
                 time.sleep(max(0.0, t0 + (k + 1) / 30.0 - time.monotonic()))
-            m = _wait_metric(sp, 'streamfix_frames_in_total{stream="fresh"}', n, timeout=20.0)
+            m = wait_metric(sp, 'streamfix_frames_in_total{stream="fresh"}', n, timeout=20.0)
             live = [r.message for r in sub.receive(timeout_s=1.0)]
         finally:
             push.close(linger=0)

@@ -155,3 +155,14 @@ def collect_until(done, collect, progress, *, stall_s: float = 20.0, max_s: floa
         collect()
         if progress() != seen:
             seen, last_change = progress(), time.monotonic()
+
+
+def wait_metric(sp, key: str, at_least: float, timeout: float = 30.0) -> dict:
+    """Poll a running serve's metrics until ``key`` reaches ``at_least`` or ``timeout`` s pass (serve must stay up)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        m = sp.metrics()
+        if m.get(key, 0.0) >= at_least or time.monotonic() > deadline:
+            return m
+        assert sp.proc.poll() is None, f"serve died:\n{sp.stderr[-3000:]}"
+        time.sleep(0.1)

@@ -24,7 +24,7 @@ from streamfix.streaming.solver_process import ProcessWindowSolver, SolverProces
 from streamfix.streaming.window_solvers import default_window_solver, wants
 from streamfix.transport.wire import encode_frame, encode_skeleton_message, topic_for
 
-from test_e2e_harness import connect_and_wait, connected_subscriber, serve
+from test_e2e_harness import connect_and_wait, connected_subscriber, serve, wait_metric
 
 
 @pytest.fixture(scope="module")
@@ -117,16 +117,6 @@ def test_a_solver_exception_fails_the_window_and_keeps_the_child(seated):
         assert solver.pid == pid and solver.restarts == 0
 
 
-def _wait_metric(sp, key: str, at_least: float, timeout: float = 30.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while True:
-        m = sp.metrics()
-        if m.get(key, 0.0) >= at_least or time.monotonic() > deadline:
-            return m
-        assert sp.proc.poll() is None, f"serve died:\n{sp.stderr[-3000:]}"
-        time.sleep(0.1)
-
-
 def _children(pid: int) -> set[int]:
     """Process ids whose parent is ``pid``, from /proc."""
     found = set()
@@ -165,7 +155,7 @@ def test_serve_with_solver_processes_survives_a_killed_child_without_losing_a_fr
                     os.kill(workers[0], signal.SIGKILL)
                 push.send_multipart([topic_for("raw", "s"), encode_frame(frame)])
                 time.sleep(max(0.0, t0 + (k + 1) / 30.0 - time.monotonic()))
-            m = _wait_metric(sp, 'streamfix_frames_in_total{stream="s"}', n)
+            m = wait_metric(sp, 'streamfix_frames_in_total{stream="s"}', n)
             assert sp.terminate() == 0, sp.stderr[-2000:]  # flushes the stream: its last frames come out
             clean = [r.message for r in sub.receive(timeout_s=2.0)]
         finally:
