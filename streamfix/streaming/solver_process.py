@@ -165,21 +165,20 @@ class _Child:
                 )
             return self.conn.recv()
         except (EOFError, OSError) as exc:
-            self.process.join(timeout=1.0)
-            raise SolverProcessError(
-                f"window solver process {self.pid} died {doing} (exit code {self.process.exitcode}); "
-                "a new one is started"
-            ) from exc
+            raise self._died(doing) from exc
+
+    def _died(self, doing: str) -> SolverProcessError:
+        """The error for a child whose pipe broke ``doing`` something (after reaping it for its exit code)."""
+        self.process.join(timeout=1.0)
+        return SolverProcessError(
+            f"window solver process {self.pid} died {doing} (exit code {self.process.exitcode}); a new one is started"
+        )
 
     def solve(self, args: tuple, kwargs: dict, timeout_s: float) -> Any:
         try:
             self.conn.send((args, kwargs))
         except (EOFError, OSError) as exc:
-            self.process.join(timeout=1.0)
-            raise SolverProcessError(
-                f"window solver process {self.pid} died before the window (exit code {self.process.exitcode}); "
-                "a new one is started"
-            ) from exc
+            raise self._died("before the window") from exc
         status, value = self._receive(timeout_s, "solving a window")
         if status != "ok":
             raise SolverProcessError(f"window solver (process {self.pid}) failed: {value}", child_lost=False)
