@@ -173,10 +173,10 @@ def motion_adaptive_smooth(y: np.ndarray, w: np.ndarray, rate_hz: float, cfg: "P
     hl = max(2, int(round(cfg.smooth_window_s * rate_hz / 2)))
     short_s = cfg.smooth_window_s if cfg.smooth_short_s is None else cfg.smooth_short_s
     hs = min(hl, max(1, int(round(short_s * rate_hz / 2))))
-    long_, _ = _fit_local_poly(y, w, hl)
+    long_, _ = fit_local_quadratic(y, w, hl)
     if hs == hl:
         return long_, hl
-    short, _ = _fit_local_poly(y, w, hs)
+    short, _ = fit_local_quadratic(y, w, hs)
     dev = np.linalg.norm((long_ - short).reshape(T, -1, 3), axis=2)  # (T, J) m
     lo, hi = cfg.smooth_bias_m
     dev = correlate1d(dev, np.full(2 * hs + 1, 1.0 / (2 * hs + 1)), axis=0, mode="nearest")
@@ -246,7 +246,6 @@ def fit_local_quadratic(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarra
     return kernels.local_poly(y, w, h) if kernels.COMPILED else _local_poly(y, w, h)
 
 
-_fit_local_poly = fit_local_quadratic
 def robust_temporal_fit(
     positions: np.ndarray,
     weights: np.ndarray,
@@ -275,7 +274,7 @@ def robust_temporal_fit(
     for c in scales_m:  # graduated non-convexity: wide basin first, then sharpen
         r = y0 - fit
         w = np.where(obs & (np.abs(r) < c), (1.0 - (r / c) ** 2) ** 2, 0.0) * prior
-        fit, support = _fit_local_poly(y0, w, h)
+        fit, support = fit_local_quadratic(y0, w, h)
     resid = np.where(obs, y0 - fit, np.nan)
     shape = (n_frames, n_joints, 3)
     return fit.reshape(shape), resid.reshape(shape), support.reshape(shape)
@@ -295,7 +294,7 @@ def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
     h^4. The ratio of the scales at h = 4 and h = 2 therefore tells sensor noise
     (ratio ~1.3) from motion detail (ratio >> 2).
     """
-    fit, _ = _fit_local_poly(y, w, h)
+    fit, _ = fit_local_quadratic(y, w, h)
     r = np.abs(y - fit)[w > 0]
     return float(1.4826 * np.median(r)) if r.size else 0.0
 
@@ -369,7 +368,7 @@ def fill_short_gaps(positions: np.ndarray, observed: np.ndarray, max_gap_frames:
     n_frames = x.shape[0]
     w = np.repeat(obs.astype(np.float64), 3, axis=1)
     y = np.where(w > 0, x.reshape(n_frames, -1), 0.0)
-    fit, _ = _fit_local_poly(y, w, max(2, int(max_gap_frames) + 1))
+    fit, _ = fit_local_quadratic(y, w, max(2, int(max_gap_frames) + 1))
     held, prev, nxt = continuity_baseline(x, obs)  # hold at an open edge
     inside = (prev >= 0) & (nxt < n_frames)
     out = np.where(inside[..., None], fit.reshape(x.shape), held)
@@ -523,7 +522,7 @@ def smooth_projection(
         return projected
     n_frames = estimate.shape[0]
     corr = (projected - estimate).reshape(n_frames, -1)
-    smooth, _ = _fit_local_poly(corr, np.ones_like(corr), h)
+    smooth, _ = fit_local_quadratic(corr, np.ones_like(corr), h)
     a = np.repeat(np.asarray(share, dtype=np.float64), 3)[None, :]
     return estimate + (corr + a * (smooth - corr)).reshape(estimate.shape)
 
