@@ -45,8 +45,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import correlate1d
 
 from .filters import odd_window, running_median
+from .pipeline import fit_local_quadratic
 
 __all__ = [
     "SupportConfig",
@@ -238,10 +240,6 @@ def smooth_planted(positions: np.ndarray, weight: np.ndarray, rate_hz: float, sp
     smoother fades in and out around a planted stretch instead of switching on. Joints
     never planted are returned unchanged.
     """
-    from scipy.ndimage import correlate1d
-
-    from .pipeline import fit_local_quadratic
-
     x = np.asarray(positions, dtype=np.float64)
     h = int(round(span_s * rate_hz / 2))
     cols = np.flatnonzero((np.asarray(weight) > 0).any(axis=0))
@@ -251,10 +249,11 @@ def smooth_planted(positions: np.ndarray, weight: np.ndarray, rate_hz: float, sp
     sub = x[:, cols]
     y = sub.reshape(T, -1)
     ok = np.isfinite(y)
-    fit, _ = fit_local_quadratic(np.where(ok, y, 0.0), ok.astype(np.float64), h)
+    y0 = np.where(ok, y, 0.0)
+    fit, _ = fit_local_quadratic(y0, ok.astype(np.float64), h)
     planted = (np.asarray(weight)[:, cols] > 0).astype(np.float64)
     share = np.clip(2.0 * correlate1d(planted, np.full(2 * h + 1, 1.0 / (2 * h + 1)), axis=0, mode="nearest"), 0.0, 1.0)
-    share = np.repeat(share, 3, axis=1) * ok
+    share = np.repeat(share, 3, axis=1) * ok  # 0 where missing: NaN stays NaN
     out = x.copy()
-    out[:, cols] = (y + share * (fit - np.where(ok, y, 0.0))).reshape(sub.shape)
+    out[:, cols] = (y + share * (fit - y0)).reshape(sub.shape)
     return out

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from pathlib import Path
 from typing import Callable
 
@@ -109,13 +110,11 @@ class _Batches:
                 yield _draw_batch(k, self._args)
             return
         ahead = 4 * self._args[1].workers
-        pending = [self._pool.apply_async(_worker_batch, (k,)) for k in range(min(ahead, total))]
+        pending = deque(self._pool.apply_async(_worker_batch, (k,)) for k in range(min(ahead, total)))
         for k in range(total):
-            batch = pending[k].get()
-            pending[k] = None
             if k + ahead < total:
                 pending.append(self._pool.apply_async(_worker_batch, (k + ahead,)))
-            yield batch
+            yield pending.popleft().get()
 
     def close(self) -> None:
         if self._pool is not None:

@@ -422,6 +422,7 @@ class BridgingWindowSolver:
         conf = finite.astype(np.float64) if confidence is None else np.where(finite, confidence, 0.0)
         obs = conf > 0
         planted = None
+        plant_weight = None  # foot support's correction weight (T, J), when it planted a leg
         if self.undo_swaps and skeleton is not None:
             # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
             from .swaps import unswap_window
@@ -441,17 +442,20 @@ class BridgingWindowSolver:
 
             x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history, trusted=conf >= 1.0)
             if weight.any():
+                plant_weight = weight
                 planted = (weight > 0.5) if planted is None else (planted | (weight > 0.5))
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
-        if self.foot_support and skeleton is not None and weight.any():
+        if planted is None:
+            return res
+        res = _with_recovered(res, planted)
+        if plant_weight is not None:
             # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
             from ..core.support import SupportConfig, smooth_planted
 
-            res = _with_recovered(res, np.zeros_like(weight, dtype=bool))
-            res.positions = smooth_planted(res.positions, weight, rate_hz, SupportConfig().planted_smooth_s)
-        return res if planted is None else _with_recovered(res, planted)
+            res.positions = smooth_planted(res.positions, plant_weight, rate_hz, SupportConfig().planted_smooth_s)
+        return res
 
     def _verify_inferred(self, x, conf, obs, bones, rate_hz, history, skeleton: Skeleton):
         """(positions, confidence, replaced mask or None): long runs of inferred samples
