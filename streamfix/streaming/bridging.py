@@ -65,6 +65,21 @@ no long gap goes to ``clean_window`` untouched (same result bit for bit, no extr
 beyond the run-length test). Skeletons without a prior and without history (C3D
 markers, BVH at the start of a stream) behave exactly as with ``clean_window`` alone.
 
+Frozen inferred limbs released (``release_frozen``, on by default)
+-------------------------------------------------------------------
+An inferred limb joint (below a limb's root, on a bone of 15 cm or more: elbows, wrists,
+knees, ankles) whose position relative to its parent follows a straight line for half a
+second or more is the sensor's frozen or drifting guess (:mod:`streamfix.core.frozen`);
+the hands and feet below it go with it. Within 1-2 s of a tracked sample of the same
+joint (``streamfix.core.inferred.TRACKED_NEAR_S``) these samples become missing before
+anything else runs: the long-gap bridge and the window pipeline fill them, and they are
+flagged ``recovered``. Farther from a tracked sample the guess stays (``seated_joints.csv``'s
+legs, inferred for 11 s), and so it does in a body's first ``FROZEN_HISTORY_S`` (the fill
+would come from the prior alone, which shows at the hand-overs). The hazard is a limb the
+person really holds still, which is a straight line too: it is replaced by the fill as
+well (the sensor protocol's ``flagged`` kind scores that cost; ``benchmarks/results/sensor.md``
+has the figures).
+
 Inferred limbs checked against the prior (``verify_inferred``, off by default)
 -----------------------------------------------------------------------------
 A sensor that loses a limb keeps reporting it, flagged inferred: frozen in its last pose
@@ -135,6 +150,11 @@ VERIFY_EXCURSION_GAIN: float | None = 1.0
 """Excursion limit of the fill the inferred samples are checked against: looser than the
 gap fill's (its hold baseline is the limb's last tracked pose, which is what a frozen
 limb keeps, so the usual limit pulls the fill onto the very guess being checked)."""
+FROZEN_HISTORY_S = 1.0
+"""Seconds of clean history a body needs before its frozen inferred limbs are released:
+before that the fill comes from the prior alone, which differs from window to window by
+more than the hand-over crossfade hides (on ``seated_joints.csv`` the seam ratio rose from
+1.05 to 1.13 with releases from the first frame on, 1.09 with this wait)."""
 PRIOR_INIT = "off"
 PRIOR_METHOD = "latent"  # fill from D(z*) ("latent") or D(E(Y)) ("encode", cheaper)
 """Prior as the solver's start on the frames entering a window: 'off', 'bridged' (only
@@ -212,6 +232,7 @@ class BridgingWindowSolver:
         excursion_sources: tuple[str, ...] = EXCURSION_SOURCES,
         prior_limited_limbs: tuple[str, ...] = PRIOR_LIMITED_LIMBS,
         verify_inferred: bool = False,
+        release_frozen: bool = True,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -226,6 +247,8 @@ class BridgingWindowSolver:
         self.foot_support = bool(foot_support)
         self.undo_swaps = bool(undo_swaps)
         self.verify_inferred = bool(verify_inferred)
+        self.release_frozen = bool(release_frozen)
+        self._limb_joints: dict[str, np.ndarray] = {}
         if prior_method not in ("latent", "encode"):
             raise ValueError(f"prior_method must be 'latent' or 'encode', got {prior_method!r}")
         self.prior_method = prior_method
@@ -421,7 +444,7 @@ class BridgingWindowSolver:
         finite = np.isfinite(x).all(axis=2)
         conf = finite.astype(np.float64) if confidence is None else np.where(finite, confidence, 0.0)
         obs = conf > 0
-        planted = None
+        replaced = None  # (T, J) samples the stages below replaced: flagged recovered
         plant_weight = None  # foot support's correction weight (T, J), when it planted a leg
         if self.undo_swaps and skeleton is not None:
             # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
@@ -430,11 +453,22 @@ class BridgingWindowSolver:
             # exchanged back, not flagged recovered: they are observed samples relabelled,
             # and the clean history must keep them so the next window sees the same labels
             x, _ = unswap_window(x, obs, skeleton, rate_hz, history)
+        if self.release_frozen and skeleton is not None:
+            # inferred limbs that stopped bending (the sensor's frozen or drifting guess,
+            # core/frozen.py) become missing: the bridge and the solver fill them
+            frozen = self._frozen(x, conf, bones, rate_hz, skeleton, history)
+            if frozen.any():
+                x = np.where(frozen[..., None], np.nan, x)
+                conf = np.where(frozen, 0.0, conf)
+                obs = conf > 0
+                replaced = frozen
         if self.verify_inferred and skeleton is not None:
             # inferred limbs the rest of the body contradicts (frozen or drifting): the
             # bridging fill takes over (core/inferred.py); before foot support, which
             # marks the legs it plants with a lowered confidence of its own
-            x, conf, planted = self._verify_inferred(x, conf, obs, bones, rate_hz, history, skeleton)
+            x, conf, verified = self._verify_inferred(x, conf, obs, bones, rate_hz, history, skeleton)
+            if verified is not None:
+                replaced = verified if replaced is None else (replaced | verified)
         if self.foot_support and skeleton is not None:
             # legs the sensor folded up while a foot must be on the floor (streaming/support.py);
             # undone before the window pipeline, which then smooths the fix with everything else
@@ -443,19 +477,47 @@ class BridgingWindowSolver:
             x, weight = plant_window(x, obs, skeleton, bones, bone_lengths, rate_hz, history, trusted=conf >= 1.0)
             if weight.any():
                 plant_weight = weight
-                planted = (weight > 0.5) if planted is None else (planted | (weight > 0.5))
+                replaced = (weight > 0.5) if replaced is None else (replaced | (weight > 0.5))
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
-        if planted is None:
+        if replaced is None:
             return res
-        res = _with_recovered(res, planted)
+        res = _with_recovered(res, replaced)
         if plant_weight is not None:
             # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
             from ..core.support import SupportConfig, smooth_planted
 
             res.positions = smooth_planted(res.positions, plant_weight, rate_hz, SupportConfig().planted_smooth_s)
         return res
+
+    def _frozen(self, x, conf, bones, rate_hz, skeleton: Skeleton, history: np.ndarray | None) -> np.ndarray:
+        """``(T, J)`` bool: inferred samples of a frozen or drifting limb near a tracked
+        sample of the same joint (core/frozen.py). A limb inferred for longer than
+        ``TRACKED_NEAR_S`` (a seated person's legs under a desk) keeps the sensor's guess:
+        with no tracked sample to anchor a fill, the fill guesses worse (on
+        ``seated_joints.csv``, releasing them for 4 s made the legs jitter more than
+        median + Savitzky-Golay's and a filled hand 7 % longer than its guessed twin)."""
+        from ..core.excursion import parents_from_bones
+        from ..core.frozen import frozen_inferred
+        from ..core.inferred import tracked_proximity
+
+        inferred = (conf > 0) & (conf < 1.0)
+        if not inferred.any() or history is None or len(history) < FROZEN_HISTORY_S * rate_hz:
+            return np.zeros(conf.shape, dtype=bool)
+        limbs = self._limb_joints.get(skeleton.name)
+        if limbs is None:
+            from ..limbs import limb_groups
+
+            parents = parents_from_bones(skeleton.bone_array, skeleton.n_joints)
+            limbs = np.zeros(skeleton.n_joints, dtype=bool)
+            for pair in limb_groups(skeleton):
+                for side in pair:
+                    limbs[side] = True
+            limbs &= (parents >= 0) & limbs[np.maximum(parents, 0)]  # below the limb's root
+            self._limb_joints[skeleton.name] = limbs
+        frozen = frozen_inferred(x, inferred, parents_from_bones(bones, x.shape[1]), limbs, rate_hz)
+        return frozen & (tracked_proximity(conf >= 1.0, rate_hz) > 0)
 
     def _verify_inferred(self, x, conf, obs, bones, rate_hz, history, skeleton: Skeleton):
         """(positions, confidence, replaced mask or None): long runs of inferred samples

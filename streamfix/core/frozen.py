@@ -1,0 +1,137 @@
+"""Inferred limbs that stopped articulating: a depth sensor's guess for a limb it lost.
+
+Why: when a Kinect loses a limb it keeps reporting it, flagged *inferred*, from its own
+guess, and that guess no longer bends: the elbow-down or knee-down part keeps one pose
+relative to the joint it hangs from (carried along by the body) or slides off at a
+steady speed. Its signature is a joint whose position relative to its parent follows a
+straight line in time (a constant offset or a constant drift) to within a few
+millimetres for half a second or more while the sensor flags it inferred.
+
+The signature is necessary, not sufficient: a limb the person holds still is a straight
+line too. On the shared Kinect v2 recordings the inferred legs of ``seated_joints.csv``
+follow a line to 0.7-2.4 mm (median), but so do the *tracked* elbows, wrists, knees and
+ankles in 46-72 % of their frames. The caller decides what to do with a rigid inferred
+run; the engine replaces it with its gap fill (:mod:`streamfix.streaming.bridging`),
+whose cost on a limb that really was still the sensor protocol's ``flagged`` kind and
+``tests/test_frozen_limbs.py`` measure.
+
+:func:`articulation` is the measure, :func:`frozen_inferred` the decision. Arrays:
+positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool, ``parents`` ``(J,)`` int (-1 = root).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+from .interpolate import missing_run_lengths
+
+__all__ = ["articulation", "frozen_inferred", "RIGID_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S", "MIN_DECIDING_BONE_M"]
+
+RIGID_M = 0.004
+"""Articulation (m, RMS residual of the straight-line fit, summed over axes) below which
+an inferred joint counts as a frozen guess: above the 0.7-2.4 mm of a real Kinect v2's
+inferred legs, below the 10 mm and more (5th percentile) of the sensor protocol's limbs
+flagged inferred while moving, sampled with its noise."""
+
+ARTICULATION_SPAN_S = 0.5
+"""Span (s) of the straight-line fit behind :func:`articulation`."""
+
+MIN_FROZEN_S = 0.5
+"""An inferred run shorter than this (s) is left alone: too short to tell from a pause."""
+
+MIN_DECIDING_BONE_M = 0.15
+"""Bones shorter than this (m: hands, feet, fingers) do not decide; see :func:`frozen_inferred`."""
+
+
+def _moving_mean(a: np.ndarray, span: int) -> np.ndarray:
+    return uniform_filter1d(a, span, axis=0, mode="nearest")
+
+
+def articulation(positions: np.ndarray, parents: np.ndarray, span: int) -> np.ndarray:
+    """``(T, J)`` m: per frame, the RMS residual of a least-squares straight line through
+    each joint's position relative to its parent over ``span`` frames centred on the frame
+    (summed over the three axes). 0 for a limb frozen or drifting at a constant velocity
+    relative to its parent; NaN for roots and where the joint or its parent is NaN.
+
+    Computed from running moments (``uniform_filter1d``), so the cost does not grow with
+    ``span``; near the ends the span is padded by repeating the end frames.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    par = np.asarray(parents, dtype=np.intp)
+    T, J = x.shape[:2]
+    span = max(3, int(span))
+    rel = x - x[:, np.maximum(par, 0)]
+    bad = ~np.isfinite(rel).all(axis=2) | (par < 0)[None, :]
+    rel = np.where(bad[..., None], 0.0, rel)
+    t = (np.arange(T, dtype=np.float64) - 0.5 * (T - 1))[:, None, None]  # centred: better conditioned
+    m_t = _moving_mean(np.broadcast_to(t, (T, 1, 1)).copy(), span)
+    m_tt = _moving_mean(t * t, span)
+    m_r = _moving_mean(rel, span)
+    m_tr = _moving_mean(t * rel, span)
+    m_rr = _moving_mean(rel * rel, span)
+    var_t = np.maximum(m_tt - m_t * m_t, 1e-12)
+    cov = m_tr - m_t * m_r
+    resid = np.maximum(m_rr - m_r * m_r - cov * cov / var_t, 0.0)
+    out = np.sqrt(resid.sum(axis=2))
+    # a NaN anywhere in a frame's span makes its value meaningless
+    bad_near = _moving_mean(bad.astype(np.float64), span) > 0
+    out[bad_near] = np.nan
+    return out
+
+
+def frozen_inferred(
+    positions: np.ndarray,
+    inferred: np.ndarray,
+    parents: np.ndarray,
+    limb_joints: np.ndarray,
+    rate_hz: float,
+    *,
+    rigid_m: float = RIGID_M,
+    span_s: float = ARTICULATION_SPAN_S,
+    min_run_s: float = MIN_FROZEN_S,
+    min_bone_m: float = MIN_DECIDING_BONE_M,
+) -> np.ndarray:
+    """``(T, J)`` bool: inferred samples of limb joints that belong to a frozen guess.
+
+    A sample is frozen when it lies in a run of inferred samples of its joint at least
+    ``min_run_s`` long, its joint is one of ``limb_joints`` (``(J,)`` bool: the joints
+    below a limb's root, whose position relative to their parent changes as the person
+    moves), and the joint's :func:`articulation` over ``span_s`` stays below ``rigid_m``
+    across the run's frames (one decision per run, taken on the run's median, so a
+    frozen limb is replaced as one stretch, not frame by frame).
+
+    Only joints on a bone of at least ``min_bone_m`` (median length in the window: elbows,
+    wrists, knees, ankles) decide; the joints on short bones below them (hands, hand tips,
+    thumbs, feet) are frozen where they are inferred and their parent is frozen. On a
+    short bone the sensor's noise is most of the articulation, and a hand the sensor
+    stopped bending on a tracked wrist is a few centimetres off at most.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    inf = np.asarray(inferred, dtype=bool) & np.isfinite(x).all(axis=2)
+    limbs = np.asarray(limb_joints, dtype=bool)
+    out = np.zeros_like(inf)
+    min_run = max(2, int(round(min_run_s * rate_hz)))
+    cand = inf & limbs[None, :] & (missing_run_lengths(~inf) >= min_run)
+    if not cand.any():
+        return out
+    par = np.asarray(parents, dtype=np.intp)
+    with np.errstate(invalid="ignore"):
+        bone = np.nanmedian(np.linalg.norm(x - x[:, np.maximum(par, 0)], axis=2), axis=0)
+    deciding = np.nan_to_num(bone) >= min_bone_m
+    art = articulation(x, par, int(round(span_s * rate_hz)))
+    for j in np.flatnonzero((cand & deciding[None, :]).any(axis=0)):  # a few limb joints per window
+        col = cand[:, j]
+        edges = np.diff(np.r_[0, col.astype(np.int8), 0])
+        for s, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            a = art[s:e, j]
+            a = a[np.isfinite(a)]
+            if len(a) and float(np.median(a)) < rigid_m:
+                out[s:e, j] = True
+    followers = np.flatnonzero(limbs & ~deciding & (par >= 0))
+    for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)
+        new = inf[:, followers] & out[:, par[followers]] & ~out[:, followers]
+        if not new.any():
+            break
+        out[:, followers] |= new
+    return out
+

@@ -1,0 +1,203 @@
+"""Inferred limbs that stopped bending are the sensor's guess, and the default engine
+replaces them (core/frozen.py, BridgingWindowSolver(release_frozen=True)): the measure
+against a least-squares reference, the decision on made-up limbs, and the engine's clean
+output on real mocap with an arm frozen or drifting while flagged inferred, the same arm
+flagged inferred but right, and a real Kinect v2 recording whose legs are inferred for
+eleven seconds."""
+from __future__ import annotations
+
+import numpy as np
+
+from streamfix.core.frozen import MIN_DECIDING_BONE_M, articulation, frozen_inferred
+from streamfix.motion import CONFIDENCE_INFERRED, Motion
+from streamfix.skeletons import get_skeleton
+from streamfix.streaming.bridging import BridgingWindowSolver
+from streamfix.streaming.engine import EngineConfig
+from streamfix.streaming.offline import clean_motion
+
+KV2 = get_skeleton("kinect_v2")
+RATE = 30.0
+
+
+def _reference_articulation(x: np.ndarray, parents: np.ndarray, span: int) -> np.ndarray:
+    """Loop-by-loop reference: a least-squares line per joint and axis over the span
+    (clipped at the ends by repeating the end frames, as uniform_filter1d's 'nearest')."""
+    T, J = x.shape[:2]
+    h = span // 2
+    out = np.full((T, J), np.nan)
+    for t in range(T):
+        idx = np.clip(np.arange(t - h, t - h + span), 0, T - 1)
+        tt = np.arange(t - h, t - h + span, dtype=float)
+        tt = np.where(np.arange(t - h, t - h + span) < 0, 0, tt)
+        tt = np.where(np.arange(t - h, t - h + span) > T - 1, T - 1, tt)
+        for j in range(J):
+            if parents[j] < 0:
+                continue
+            rel = x[idx, j] - x[idx, parents[j]]
+            A = np.stack([tt, np.ones_like(tt)], axis=1)
+            coef, *_ = np.linalg.lstsq(A, rel, rcond=None)
+            out[t, j] = np.sqrt(((rel - A @ coef) ** 2).mean(axis=0).sum())
+    return out
+
+
+def test_articulation_matches_a_least_squares_reference_and_is_zero_for_lines():
+    rng = np.random.default_rng(3)
+    T, span = 40, 9
+    parents = np.array([-1, 0, 1, 2])
+    x = rng.normal(size=(T, 4, 3)) * 0.05
+    t = np.arange(T, dtype=float)[:, None]
+    x[:, 2] = x[:, 1] + np.array([0.3, 0.0, 0.0])  # frozen relative to its parent
+    x[:, 3] = x[:, 2] + 0.01 * t * np.array([1.0, -2.0, 0.5])  # drifting at a constant velocity
+    got = articulation(x, parents, span)
+    ref = _reference_articulation(x, parents, span)
+    assert np.isnan(got[:, 0]).all()  # the root has no parent
+    np.testing.assert_allclose(got[:, 1:], ref[:, 1:], atol=1e-7)
+    assert np.abs(got[:, 2:]).max() < 1e-6  # frozen and drifting limbs follow a line
+    assert got[:, 1].min() > 0.01  # a noisy joint does not
+    x[20, 1] = np.nan
+    assert np.isnan(articulation(x, parents, span)[16:25, 1]).all()  # NaN poisons the frames that see it
+
+
+def _arm_layout():
+    """Shoulder (root) -> elbow -> wrist -> hand: a 0.3 m upper arm, 0.25 m forearm, 0.08 m hand."""
+    return np.array([-1, 0, 1, 2]), np.array([False, True, True, True])
+
+
+def _arm(T: int, bend_hz: float = 0.5) -> np.ndarray:
+    t = np.arange(T) / RATE
+    ang = 0.8 * np.sin(2 * np.pi * bend_hz * t)
+    x = np.zeros((T, 4, 3))
+    x[:, 1] = x[:, 0] + np.stack([0.3 * np.cos(ang), 0.3 * np.sin(ang), 0 * t], axis=1)
+    x[:, 2] = x[:, 1] + np.stack([0.25 * np.cos(2 * ang), 0.25 * np.sin(2 * ang), 0 * t], axis=1)
+    x[:, 3] = x[:, 2] + np.stack([0.08 * np.cos(2 * ang), 0.08 * np.sin(2 * ang), 0 * t], axis=1)
+    return x
+
+
+def test_frozen_inferred_marks_a_frozen_limb_and_spares_a_bending_one():
+    parents, limbs = _arm_layout()
+    T = 90
+    x = _arm(T)
+    inferred = np.zeros((T, 4), dtype=bool)
+    inferred[30:75, 1:] = True
+    # bending while flagged inferred: the sensor's guess is right, nothing is frozen
+    assert not frozen_inferred(x, inferred, parents, limbs, RATE).any()
+    # the elbow-down part keeps its pose relative to the shoulder from frame 30 on
+    frozen = x.copy()
+    frozen[30:75, 1:] = x[29, 1:][None]
+    got = frozen_inferred(frozen, inferred, parents, limbs, RATE)
+    assert got[30:75, 1:].all() and not got[:30].any() and not got[75:].any()
+    # drifting at a constant velocity is the same guess
+    drift = frozen.copy()
+    drift[30:75, 1:] += (0.06 / RATE) * np.arange(45)[:, None, None] * np.array([0.0, 0.6, 0.8])
+    assert frozen_inferred(drift, inferred, parents, limbs, RATE)[30:75, 1:].all()
+    # a run shorter than MIN_FROZEN_S is a pause, not a guess
+    short = inferred.copy()
+    short[44:75] = False  # 14 frames
+    assert not frozen_inferred(frozen, short, parents, limbs, RATE).any()
+    # tracked samples are never frozen, however still
+    assert not frozen_inferred(frozen, np.zeros_like(inferred), parents, limbs, RATE).any()
+
+
+def test_a_short_bone_follows_its_parent_and_does_not_decide_alone():
+    parents, limbs = _arm_layout()
+    T = 90
+    x = _arm(T)
+    assert np.linalg.norm(x[:, 3] - x[:, 2], axis=1).max() < MIN_DECIDING_BONE_M
+    inferred = np.zeros((T, 4), dtype=bool)
+    inferred[30:75, 3] = True
+    hand_only = x.copy()
+    hand_only[30:75, 3] = x[30:75, 2] + (x[29, 3] - x[29, 2])  # the hand alone stops bending
+    assert not frozen_inferred(hand_only, inferred, parents, limbs, RATE).any()
+    # the hand of a frozen forearm goes with it
+    inferred[30:75, 2] = True
+    both = x.copy()
+    both[30:75, 2:] = x[30:75, 1][:, None] + (x[29, 2:] - x[29, 1])[None]
+    got = frozen_inferred(both, inferred, parents, limbs, RATE)
+    assert got[30:75, 2].all() and got[30:75, 3].all() and not got[:, 1].any()
+
+
+# --------------------------------------------------------------------------- engine, real data
+def _walk_with_failed_arm(shared_data, drift_m_s: float = 0.0, move: bool = True):
+    from streamfix.evaluation.sensor import ground_truth
+
+    truth = ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", RATE).positions
+    names = KV2.joint_names
+    arm = np.array([names.index(n) for n in ("ElbowLeft", "WristLeft", "HandLeft", "HandTipLeft", "ThumbLeft")])
+    shoulder = names.index("ShoulderLeft")
+    a, b = 90, 150  # 2 s, after 3 s of history
+    assert len(truth) > b + 30
+    x = truth.copy()
+    conf = np.ones(truth.shape[:2])
+    if move:
+        pose = truth[a - 1, arm] - truth[a - 1, shoulder]
+        steps = np.arange(1, b - a + 1)[:, None, None]
+        x[a:b, arm] = truth[a:b, shoulder][:, None] + pose[None] + steps * (drift_m_s / RATE) * np.array([0.0, -0.6, 0.8])
+    conf[a:b, arm] = CONFIDENCE_INFERRED
+    return truth, x, conf, arm, a, b
+
+
+def _err(y, truth, a, b, arm) -> float:
+    return float(np.linalg.norm(y[a:b, arm] - truth[a:b, arm], axis=2).mean())
+
+
+def test_the_default_engine_replaces_a_frozen_or_drifting_inferred_arm(shared_data):
+    cfg = EngineConfig(rate_hz=RATE)
+    for drift in (0.0, 0.063):
+        truth, x, conf, arm, a, b = _walk_with_failed_arm(shared_data, drift)
+        motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
+        out, _ = clean_motion(motion, cfg)
+        kept, _ = clean_motion(motion, cfg, BridgingWindowSolver(release_frozen=False))
+        e_in, e_out, e_kept = (_err(y, truth, a, b, arm) for y in (x, out.positions, kept.positions))
+        print(f"arm drifting {drift} m/s for 2 s: input {e_in * 1000:.0f} mm, clean {e_out * 1000:.0f}, "
+              f"without the release {e_kept * 1000:.0f}")
+        assert e_out < 0.8 * min(e_in, e_kept)
+        assert out.recovered[a + 20:b - 10, arm].all()  # the replaced samples are flagged recovered
+        rest = np.setdiff1d(np.arange(25), arm)
+        assert np.abs(out.positions[:, rest] - kept.positions[:, rest]).mean() < 0.005  # the rest barely moves
+
+
+def test_an_inferred_arm_that_is_right_is_left_alone(shared_data):
+    truth, x, conf, arm, a, b = _walk_with_failed_arm(shared_data, move=False)
+    motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
+    out, _ = clean_motion(motion, EngineConfig(rate_hz=RATE))
+    assert not out.recovered[a:b, arm].any()
+    assert _err(out.positions, truth, a, b, arm) < 0.01
+
+
+def test_a_still_inferred_arm_that_is_right_costs_a_bounded_error(shared_data):
+    """The release's hazard, measured: a still limb is rigid too (on the Kinect v2
+    recordings, tracked elbows, wrists, knees and ankles bend less than RIGID_M in 46-72 %
+    of their frames), so a right, still, inferred arm is released as well, and on a
+    moving body the fill swings it: 14 cm off on average over these 2 s, where the same
+    arm frozen while it really swung is 38 cm off raw and 28 cm cleaned. The sensor
+    protocol's ``flagged`` kind scores this hazard over many takes."""
+    truth, x, conf, arm, a, b = _walk_with_failed_arm(shared_data)
+    truth = x.copy()  # the person really holds the arm still relative to the shoulder
+    motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
+    out, _ = clean_motion(motion, EngineConfig(rate_hz=RATE))
+    assert out.recovered[a + 20:b - 10, arm].all()
+    e = _err(out.positions, truth, a, b, arm)
+    print(f"still arm released: {e * 1000:.1f} mm from where it was")
+    assert e < 0.20
+
+
+def test_legs_inferred_for_long_keep_the_sensors_guess(shared_data):
+    """seated_joints.csv: the knees and ankles are tracked for the first second or so, then
+    inferred to the end (11 s), barely bending (a seated person's legs under a desk). The
+    release replaces them only within 2 s of their last tracked sample: beyond it there
+    is nothing to anchor a fill on, and the guess stays."""
+    from streamfix.io import read_motion
+
+    m = read_motion(shared_data / "kinect_v2" / "seated_joints.csv")
+    cfg = EngineConfig(rate_hz=m.rate_hz)
+    on, _ = clean_motion(m, cfg)
+    off, _ = clean_motion(m, cfg, BridgingWindowSolver(release_frozen=False))
+    released_any = False
+    for name in ("KneeLeft", "AnkleLeft", "KneeRight", "AnkleRight"):
+        j = KV2.joint_names.index(name)
+        last_tracked = int(np.flatnonzero(m.confidence[:, j] >= 1)[-1])
+        assert m.n_frames - last_tracked > 300  # inferred for 10 s and more
+        released = np.flatnonzero(on.recovered[:, j] & ~off.recovered[:, j])
+        released_any |= len(released) > 0
+        assert (released <= last_tracked + 2 * m.rate_hz).all(), (name, last_tracked, released)
+    assert released_any  # near its tracked samples a still inferred leg is released
