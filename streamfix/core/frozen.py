@@ -21,6 +21,7 @@ positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool, ``parents`` ``(J,)`` int 
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 from scipy.ndimage import uniform_filter1d
 
 from .interpolate import missing_run_lengths
@@ -100,7 +101,7 @@ def frozen_inferred(
     across the run's frames (one decision per run, taken on the run's median, so a
     frozen limb is replaced as one stretch, not frame by frame).
 
-    Only joints on a bone of at least ``min_bone_m`` (median length in the window: elbows,
+    Only joints on a bone of at least ``min_bone_m`` (mean length in the window: elbows,
     wrists, knees, ankles) decide; the joints on short bones below them (hands, hand tips,
     thumbs, feet) are frozen where they are inferred and their parent is frozen. On a
     short bone the sensor's noise is most of the articulation, and a hand the sensor
@@ -109,24 +110,33 @@ def frozen_inferred(
     x = np.asarray(positions, dtype=np.float64)
     inf = np.asarray(inferred, dtype=bool) & np.isfinite(x).all(axis=2)
     limbs = np.asarray(limb_joints, dtype=bool)
+    T, J = inf.shape
     out = np.zeros_like(inf)
     min_run = max(2, int(round(min_run_s * rate_hz)))
     cand = inf & limbs[None, :] & (missing_run_lengths(~inf) >= min_run)
     if not cand.any():
         return out
     par = np.asarray(parents, dtype=np.intp)
-    with np.errstate(invalid="ignore"):
-        bone = np.nanmedian(np.linalg.norm(x - x[:, np.maximum(par, 0)], axis=2), axis=0)
-    deciding = np.nan_to_num(bone) >= min_bone_m
+    rel = np.linalg.norm(x - x[:, np.maximum(par, 0)], axis=2)
+    fin = np.isfinite(rel)
+    bone = np.where(fin, rel, 0.0).sum(axis=0) / np.maximum(fin.sum(axis=0), 1)  # mean length (m)
+    deciding = bone >= min_bone_m
+    runs = (cand & deciding[None, :]).T  # (J, T)
+    if not runs.any():  # the short bones below follow a frozen parent only
+        return out
     art = articulation(x, par, int(round(span_s * rate_hz)))
-    for j in np.flatnonzero((cand & deciding[None, :]).any(axis=0)):  # a few limb joints per window
-        col = cand[:, j]
-        edges = np.diff(np.r_[0, col.astype(np.int8), 0])
-        for s, e in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
-            a = art[s:e, j]
-            a = a[np.isfinite(a)]
-            if len(a) and float(np.median(a)) < rigid_m:
-                out[s:e, j] = True
+    # one label per (joint, run) of candidate samples; a run is frozen when the median
+    # articulation over its frames is below rigid_m
+    starts = runs & ~np.concatenate([np.zeros((J, 1), dtype=bool), runs[:, :-1]], axis=1)
+    label = np.cumsum(starts.ravel()).reshape(J, T) * runs
+    n_runs = int(label.max())
+    if n_runs:
+        art_t = art.T
+        scored = np.where(np.isfinite(art_t), label, 0)
+        with np.errstate(invalid="ignore"):
+            med = np.asarray(ndimage.median(np.nan_to_num(art_t), labels=scored, index=np.arange(1, n_runs + 1)))
+        frozen_run = np.concatenate([[False], np.nan_to_num(med, nan=np.inf) < rigid_m])
+        out |= frozen_run[label].T
     followers = np.flatnonzero(limbs & ~deciding & (par >= 0))
     for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)
         new = inf[:, followers] & out[:, par[followers]] & ~out[:, followers]
