@@ -117,17 +117,17 @@ import numpy as np
 
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
-from ..core.isometry import length_mode_with_support, symmetric_lengths
 from ..limbs import mirror_bones
 from .blending import HANDOVER_S, handover_weights
+from .bone_lengths import LengthSources, record_raw_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,
     BONE_MEMORY_S,  # noqa: F401
-    BONE_OWN_SUPPORT_S,
-    BONE_SUPPORT_FRAMES,
-    BONE_PEAK_SHARE,
-    BONE_SUPPORT_TOL_M,
-    GUESSED_SHARE_POOLED,
+    BONE_OWN_SUPPORT_S,  # noqa: F401
+    BONE_SUPPORT_FRAMES,  # noqa: F401
+    BONE_PEAK_SHARE,  # noqa: F401
+    BONE_SUPPORT_TOL_M,  # noqa: F401
+    GUESSED_SHARE_POOLED,  # noqa: F401
     HISTORY_S,  # noqa: F401
     RECOVERED_CONFIDENCE,  # noqa: F401
     Body,
@@ -494,82 +494,35 @@ class StreamEngine:
                 self._begin_end(st, body)
         self._drain(st, out)
 
-    def _raw_history_lengths(self, body: Body) -> np.ndarray | None:
-        """Shorth-mode bone lengths over the last ``BONE_MEMORY_S`` of raw input, if well supported.
-
-        Frames where both ends of a bone are *tracked* count; a bone with less than
-        ``BONE_OWN_SUPPORT_S`` of them uses its *inferred* samples too, then a poorly seen
-        bone borrows its mirror's length (:func:`~streamfix.core.isometry.symmetric_lengths`).
-        Trusted only when every
-        bone has at least ``BONE_SUPPORT_FRAMES`` samples within ``BONE_SUPPORT_TOL_M`` of
-        its mode; otherwise None (the clean-history median or per-window estimate is
-        used). Unlike the clean-output median this does not feed back on itself: a wrong
-        early estimate baked into the clean output cannot persist. Measured on CMU 131_01
-        / 131_02 at 30 Hz (seeds 1310, 1320, 1, 2, 3, 4), streaming clean AJE / offline
-        whole-sequence AJE: 1.01-1.56x with the clean-output median alone, 0.76-1.22x
-        with this first.
-        """
-        if not len(self.bones):
-            return None
-        win = body.ring.window()
-        first = max(body.raw_bones_end, win.start)
-        if win.end > first:
-            seg = slice(first - win.start, win.end - win.start)
-            pos = win.positions[seg]
-            lengths = np.linalg.norm(pos[:, self.bones[:, 1]] - pos[:, self.bones[:, 0]], axis=2)
-            conf = win.confidence[seg]
-            low = np.minimum(conf[:, self.bones[:, 0]], conf[:, self.bones[:, 1]])
-            rows = np.arange(first, win.end) % len(body.raw_bones)
-            body.raw_bones[rows] = np.where(low >= 1.0, lengths, np.nan)
-            body.raw_bones_seen[rows] = np.where(low > 0.0, lengths, np.nan)
-            body.raw_bones_end = win.end
-        est, support = length_mode_with_support(body.raw_bones, tolerance_m=BONE_SUPPORT_TOL_M)
-        own = max(1, int(round(BONE_OWN_SUPPORT_S * self.cfg.rate_hz)))
-        thin = support < own
-        if thin.any():
-            # never a length from a handful of tracked frames: a limb the sensor mostly
-            # infers keeps consistent lengths in its inferred samples (seated_joints: the
-            # left shin's 7 tracked frames said 0.53 m, its 350 inferred ones 0.385 m)
-            est_all, support_all = length_mode_with_support(body.raw_bones_seen, tolerance_m=BONE_SUPPORT_TOL_M)
-            use = thin & (support_all > support)
-            est, support = np.where(use, est_all, est), np.where(use, support_all, support)
-        # a mode is a length only if it is a peak: clean samples of a rigid bone pile up
-        # within millimetres, corrupted ones spread over decimetres (80 % of coordinates
-        # corrupted: 2-5 % of samples near the mode, real sensors 14-90 %)
-        seen = np.isfinite(body.raw_bones_seen).sum(axis=0)
-        with np.errstate(invalid="ignore"):
-            near = (np.abs(body.raw_bones_seen - est[None, :]) <= BONE_SUPPORT_TOL_M).sum(axis=0)
-        peaked = ~np.isfinite(est) | (near >= BONE_PEAK_SHARE * seen)  # unseen: the mirror's (below)
-        # a limb the sensor has been guessing shares its lengths with its mirror (see
-        # symmetric_lengths): its own samples, however many, are the sensor's guesses
-        guessed = seen - np.isfinite(body.raw_bones).sum(axis=0)
-        lo, hi = GUESSED_SHARE_POOLED
-        pool = np.clip((guessed / np.maximum(seen, 1) - lo) / (hi - lo), 0.0, 1.0) * (guessed > 0)
-        est, support = symmetric_lengths(est, support, self._mirror_bones, own_support=own, pool=pool)
-        if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all() and peaked.all():
-            return est
-        return None
-
     def _robust_lengths(self, body: Body) -> np.ndarray | None:
-        """``(B,)`` bone lengths (m) for the solver and the live projection.
+        """``(B,)`` bone lengths (m) for the solver and the live projection, now."""
+        return self._length_sources(body).resolve()
 
-        Fixed lengths if configured; else the median over the body's last
-        ``BONE_MEMORY_S`` (10 s) of *clean* output (robust: the window solver already
-        removed the outliers, while a median over raw corrupted input is biased by
-        several cm), once ``BONE_HISTORY_S`` (3 s) of it exist; before that, the lengths
-        remembered for a re-identified body, else None (the window solver estimates them
-        from its window). Measured on CMU 131 at 20 % corruption: per-window estimates
-        only, 1.18-1.32x the whole-sequence AJE; clean history after 3 s, 1.11-1.12x.
+    def _length_sources(self, body: Body) -> LengthSources:
+        """What the body's bone lengths come from (resolved where the window is solved).
+
+        Fixed lengths if configured; else the shorth mode of the last ``BONE_MEMORY_S``
+        of raw input when well supported (:func:`~streamfix.streaming.bone_lengths.raw_history_lengths`);
+        else the median over the body's last ``BONE_MEMORY_S`` (10 s) of *clean* output
+        (robust: the window solver already removed the outliers, while a median over raw
+        corrupted input is biased by several cm), once ``BONE_HISTORY_S`` (3 s) of it
+        exist; before that, the lengths remembered for a re-identified body, else None
+        (the window solver estimates them from its window). Measured on CMU 131 at 20 %
+        corruption: per-window estimates only, 1.18-1.32x the whole-sequence AJE; clean
+        history after 3 s, 1.11-1.12x.
         """
         if self._fixed_lengths is not None:
-            return self._fixed_lengths
-        raw = self._raw_history_lengths(body)
-        if raw is not None:
-            return raw
+            return LengthSources(None, None, self._mirror_bones, self.cfg.rate_hz, self._fixed_lengths)
         need = min(max(1, int(round(BONE_HISTORY_S * self.cfg.rate_hz))), len(body.clean_bones))
         if len(self.bones) and body.clean_bones_n >= need and body.clean_lengths is not None:
-            return body.clean_lengths
-        return body.prior_lengths
+            fallback = body.clean_lengths
+        else:
+            fallback = body.prior_lengths
+        if not len(self.bones):
+            return LengthSources(None, None, self._mirror_bones, self.cfg.rate_hz, fallback)
+        record_raw_bones(body, self.bones)
+        return LengthSources(body.raw_bones.copy(), body.raw_bones_seen.copy(), self._mirror_bones,
+                             self.cfg.rate_hz, fallback)
 
     # ------------------------------------------------------------------ windows
     def _iterations(self) -> int | None:
@@ -590,7 +543,7 @@ class StreamEngine:
         self.counters["windows_scheduled"] += 1
         job = Job(
             body, win.start, win.end, win.positions.copy(), win.confidence.copy(),
-            self._robust_lengths(body), self._iterations(), final,
+            self._length_sources(body), self._iterations(), final,
         )
         if self._history:
             # the clean output of the frames before the window (row -1 = frame start - 1)
@@ -682,7 +635,8 @@ class StreamEngine:
             kwargs["config"] = config
         t0 = time.perf_counter()
         try:
-            res = self.solver(job.positions, job.confidence, self.bones, job.bone_lengths, self.cfg.rate_hz, **kwargs)
+            lengths = job.bone_lengths.resolve()  # here, not when scheduled: off the live path
+            res = self.solver(job.positions, job.confidence, self.bones, lengths, self.cfg.rate_hz, **kwargs)
             pos = np.asarray(res.positions, dtype=np.float64)
             if pos.shape != job.positions.shape:
                 raise ValueError(f"window solver returned {pos.shape}, expected {job.positions.shape}")

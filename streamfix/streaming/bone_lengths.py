@@ -1,0 +1,116 @@
+"""A body's bone lengths for its next window, from the last seconds of raw input.
+
+The engine's main thread only files each frame's raw bone lengths into the body's
+memory (:func:`record_raw_bones`, a few array operations per hop) and hands the window
+job a :class:`LengthSources` snapshot; the estimate itself (two shorth modes over up to
+``BONE_MEMORY_S`` of samples and the left/right pooling, the costliest step of
+scheduling a window) runs where the window is solved (:meth:`LengthSources.resolve`):
+in threaded mode on the worker, whose compiled kernels release the GIL, so the live
+path is not kept waiting. The result is the same as computing it at scheduling time.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.isometry import length_mode_with_support, symmetric_lengths
+from .bodies import (
+    BONE_OWN_SUPPORT_S,
+    BONE_PEAK_SHARE,
+    BONE_SUPPORT_FRAMES,
+    BONE_SUPPORT_TOL_M,
+    GUESSED_SHARE_POOLED,
+    Body,
+)
+
+__all__ = ["LengthSources", "record_raw_bones", "raw_history_lengths"]
+
+
+def record_raw_bones(body: Body, bones: np.ndarray) -> None:
+    """File the bone lengths (m) of the body's raw frames not filed yet into its memory:
+    ``raw_bones`` where both ends are tracked, ``raw_bones_seen`` where both are observed
+    (inferred samples too); NaN otherwise."""
+    win = body.ring.window()
+    first = max(body.raw_bones_end, win.start)
+    if win.end <= first:
+        return
+    seg = slice(first - win.start, win.end - win.start)
+    pos = win.positions[seg]
+    lengths = np.linalg.norm(pos[:, bones[:, 1]] - pos[:, bones[:, 0]], axis=2)
+    conf = win.confidence[seg]
+    low = np.minimum(conf[:, bones[:, 0]], conf[:, bones[:, 1]])
+    rows = np.arange(first, win.end) % len(body.raw_bones)
+    body.raw_bones[rows] = np.where(low >= 1.0, lengths, np.nan)
+    body.raw_bones_seen[rows] = np.where(low > 0.0, lengths, np.nan)
+    body.raw_bones_end = win.end
+
+
+def raw_history_lengths(
+    raw_bones: np.ndarray, raw_bones_seen: np.ndarray, mirror_bones: np.ndarray, rate_hz: float
+) -> np.ndarray | None:
+    """``(B,)`` shorth-mode bone lengths (m) over the remembered raw samples, if well supported.
+
+    ``raw_bones`` / ``raw_bones_seen`` ``(N, B)``: per-frame lengths with both ends tracked /
+    observed (NaN = none). Frames where both ends of a bone are *tracked* count; a bone
+    with less than ``BONE_OWN_SUPPORT_S`` of them uses its *inferred* samples too, then a
+    poorly seen bone borrows its mirror's length
+    (:func:`~streamfix.core.isometry.symmetric_lengths`). Trusted only when every bone
+    has at least ``BONE_SUPPORT_FRAMES`` samples within ``BONE_SUPPORT_TOL_M`` of its
+    mode; otherwise None (the clean-history median or per-window estimate is used).
+    Unlike the clean-output median this does not feed back on itself: a wrong early
+    estimate baked into the clean output cannot persist. Measured on CMU 131_01 / 131_02
+    at 30 Hz (seeds 1310, 1320, 1, 2, 3, 4), streaming clean AJE / offline whole-sequence
+    AJE: 1.01-1.56x with the clean-output median alone, 0.76-1.22x with this first.
+    """
+    est, support = length_mode_with_support(raw_bones, tolerance_m=BONE_SUPPORT_TOL_M)
+    own = max(1, int(round(BONE_OWN_SUPPORT_S * rate_hz)))
+    thin = support < own
+    if thin.any():
+        # never a length from a handful of tracked frames: a limb the sensor mostly
+        # infers keeps consistent lengths in its inferred samples (seated_joints: the
+        # left shin's 7 tracked frames said 0.53 m, its 350 inferred ones 0.385 m)
+        est_all, support_all = length_mode_with_support(raw_bones_seen, tolerance_m=BONE_SUPPORT_TOL_M)
+        use = thin & (support_all > support)
+        est, support = np.where(use, est_all, est), np.where(use, support_all, support)
+    # a mode is a length only if it is a peak: clean samples of a rigid bone pile up
+    # within millimetres, corrupted ones spread over decimetres (80 % of coordinates
+    # corrupted: 2-5 % of samples near the mode, real sensors 14-90 %)
+    seen = np.isfinite(raw_bones_seen).sum(axis=0)
+    with np.errstate(invalid="ignore"):
+        near = (np.abs(raw_bones_seen - est[None, :]) <= BONE_SUPPORT_TOL_M).sum(axis=0)
+    peaked = ~np.isfinite(est) | (near >= BONE_PEAK_SHARE * seen)  # unseen: the mirror's (below)
+    # a limb the sensor has been guessing shares its lengths with its mirror (see
+    # symmetric_lengths): its own samples, however many, are the sensor's guesses
+    guessed = seen - np.isfinite(raw_bones).sum(axis=0)
+    lo, hi = GUESSED_SHARE_POOLED
+    pool = np.clip((guessed / np.maximum(seen, 1) - lo) / (hi - lo), 0.0, 1.0) * (guessed > 0)
+    est, support = symmetric_lengths(est, support, mirror_bones, own_support=own, pool=pool)
+    if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all() and peaked.all():
+        return est
+    return None
+
+
+@dataclass
+class LengthSources:
+    """What a window's bone lengths are estimated from, copied when the window is scheduled.
+
+    ``raw_bones`` / ``raw_bones_seen``: the body's raw-length memory (None: no bones, or
+    fixed lengths); ``fallback``: the lengths to use when the raw estimate is not trusted
+    (the clean-output median once ``BONE_HISTORY_S`` of it exist, else a re-identified
+    body's remembered lengths, else None: the window solver estimates its own).
+    """
+
+    raw_bones: np.ndarray | None
+    raw_bones_seen: np.ndarray | None
+    mirror_bones: np.ndarray
+    rate_hz: float
+    fallback: np.ndarray | None
+
+    def resolve(self) -> np.ndarray | None:
+        """``(B,)`` lengths in metres, or None."""
+        if self.raw_bones is not None:
+            raw = raw_history_lengths(self.raw_bones, self.raw_bones_seen, self.mirror_bones, self.rate_hz)
+            if raw is not None:
+                return raw
+        return self.fallback
