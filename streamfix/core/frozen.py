@@ -48,18 +48,27 @@ def _moving_mean(a: np.ndarray, span: int) -> np.ndarray:
     return uniform_filter1d(a, span, axis=0, mode="nearest")
 
 
-def articulation(positions: np.ndarray, parents: np.ndarray, span: int) -> np.ndarray:
+def articulation(positions: np.ndarray, parents: np.ndarray, span: int, joints: np.ndarray | None = None) -> np.ndarray:
     """``(T, J)`` m: per frame, the RMS residual of a least-squares straight line through
     each joint's position relative to its parent over ``span`` frames centred on the frame
     (summed over the three axes). 0 for a limb frozen or drifting at a constant velocity
     relative to its parent; NaN for roots and where the joint or its parent is NaN.
 
     Computed from running moments (``uniform_filter1d``), so the cost does not grow with
-    ``span``; near the ends the span is padded by repeating the end frames.
+    ``span``; near the ends the span is padded by repeating the end frames. ``joints``
+    (indices): compute only these columns, the others are NaN.
     """
     x = np.asarray(positions, dtype=np.float64)
     par = np.asarray(parents, dtype=np.intp)
     T, J = x.shape[:2]
+    if joints is not None:
+        cols = np.asarray(joints, dtype=np.intp)
+        full = np.full((T, J), np.nan)
+        if len(cols):
+            sub = np.concatenate([x[:, cols], x[:, np.maximum(par[cols], 0)]], axis=1)
+            sub_par = np.where(par[cols] >= 0, np.arange(len(cols)) + len(cols), -1)
+            full[:, cols] = articulation(sub, np.concatenate([sub_par, np.full(len(cols), -1)]), span)[:, : len(cols)]
+        return full
     span = max(3, int(span))
     rel = x - x[:, np.maximum(par, 0)]
     bad = ~np.isfinite(rel).all(axis=2) | (par < 0)[None, :]
@@ -124,7 +133,7 @@ def frozen_inferred(
     runs = (cand & deciding[None, :]).T  # (J, T)
     if not runs.any():  # the short bones below follow a frozen parent only
         return out
-    art = articulation(x, par, int(round(span_s * rate_hz)))
+    art = articulation(x, par, int(round(span_s * rate_hz)), joints=np.flatnonzero(runs.any(axis=1)))
     # one label per (joint, run) of candidate samples; a run is frozen when the median
     # articulation over its frames is below rigid_m
     starts = runs & ~np.concatenate([np.zeros((J, 1), dtype=bool), runs[:, :-1]], axis=1)
