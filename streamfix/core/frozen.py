@@ -10,10 +10,11 @@ millimetres for half a second or more while the sensor flags it inferred.
 The signature is necessary, not sufficient: a limb the person holds still is a straight
 line too. On the shared Kinect v2 recordings the inferred legs of ``seated_joints.csv``
 follow a line to 0.7-2.4 mm (median), but so do the *tracked* elbows, wrists, knees and
-ankles in 46-72 % of their frames. The caller decides what to do with a rigid inferred
-run; the engine replaces it with its gap fill (:mod:`streamfix.streaming.bridging`),
-whose cost on a limb that really was still the sensor protocol's ``flagged`` kind and
-``tests/test_frozen_limbs.py`` measure.
+ankles in 46-72 % of their frames. So a rigid run counts as a guess only while the
+limb's left/right twin bends: a person holding still holds both. What remains is a limb
+held still while the other moves; the engine replaces such runs with its gap fill
+(:mod:`streamfix.streaming.bridging`), and the sensor protocol's ``flagged`` kind and
+``tests/test_frozen_limbs.py`` measure what that costs where the guess was right.
 
 :func:`articulation` is the measure, :func:`frozen_inferred` the decision. Arrays:
 positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool, ``parents`` ``(J,)`` int (-1 = root).
@@ -100,6 +101,7 @@ def frozen_inferred(
     span_s: float = ARTICULATION_SPAN_S,
     min_run_s: float = MIN_FROZEN_S,
     min_bone_m: float = MIN_DECIDING_BONE_M,
+    mirror: np.ndarray | None = None,
 ) -> np.ndarray:
     """``(T, J)`` bool: inferred samples of limb joints that belong to a frozen guess.
 
@@ -115,6 +117,12 @@ def frozen_inferred(
     thumbs, feet) are frozen where they are inferred and their parent is frozen. On a
     short bone the sensor's noise is most of the articulation, and a hand the sensor
     stopped bending on a tracked wrist is a few centimetres off at most.
+
+    ``mirror`` ``(J,)`` (each joint's left/right twin; None: no such test): a run is
+    frozen only if the twin bends (articulation at least ``rigid_m`` over the same
+    frames, median). A limb still beside a still twin is a person holding still (a
+    seated user's legs); beside a moving twin, the sensor's guess. A twin without a
+    measure (missing) does not stop the decision.
     """
     x = np.asarray(positions, dtype=np.float64)
     inf = np.asarray(inferred, dtype=bool) & np.isfinite(x).all(axis=2)
@@ -133,7 +141,10 @@ def frozen_inferred(
     runs = (cand & deciding[None, :]).T  # (J, T)
     if not runs.any():  # the short bones below follow a frozen parent only
         return out
-    art = articulation(x, par, int(round(span_s * rate_hz)), joints=np.flatnonzero(runs.any(axis=1)))
+    cols = np.flatnonzero(runs.any(axis=1))
+    if mirror is not None:
+        cols = np.union1d(cols, np.asarray(mirror, dtype=np.intp)[cols])
+    art = articulation(x, par, int(round(span_s * rate_hz)), joints=cols)
     # one label per (joint, run) of candidate samples; a run is frozen when the median
     # articulation over its frames is below rigid_m
     starts = runs & ~np.concatenate([np.zeros((J, 1), dtype=bool), runs[:, :-1]], axis=1)
@@ -145,6 +156,15 @@ def frozen_inferred(
         with np.errstate(invalid="ignore"):
             med = np.asarray(ndimage.median(np.nan_to_num(art_t), labels=scored, index=np.arange(1, n_runs + 1)))
         frozen_run = np.concatenate([[False], np.nan_to_num(med, nan=np.inf) < rigid_m])
+        if mirror is not None:
+            # the same frames of the mirror joint: a limb held still beside a still twin is a
+            # person holding still; beside a moving twin, the sensor's guess
+            twin = np.asarray(mirror, dtype=np.intp)
+            art_m = art[:, twin].T  # (J, T): the mirror's articulation, on each joint's row
+            scored_m = np.where(np.isfinite(art_m), label, 0)
+            with np.errstate(invalid="ignore"):
+                med_m = np.asarray(ndimage.median(np.nan_to_num(art_m), labels=scored_m, index=np.arange(1, n_runs + 1)))
+            frozen_run[1:] &= np.nan_to_num(med_m, nan=np.inf) >= rigid_m
         out |= frozen_run[label].T
     followers = np.flatnonzero(limbs & ~deciding & (par >= 0))
     for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)

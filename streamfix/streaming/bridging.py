@@ -69,16 +69,16 @@ Frozen inferred limbs released (``release_frozen``, on by default)
 -------------------------------------------------------------------
 An inferred limb joint (below a limb's root, on a bone of 15 cm or more: elbows, wrists,
 knees, ankles) whose position relative to its parent follows a straight line for half a
-second or more is the sensor's frozen or drifting guess (:mod:`streamfix.core.frozen`);
-the hands and feet below it go with it. Within 1-2 s of a tracked sample of the same
-joint (``streamfix.core.inferred.TRACKED_NEAR_S``) these samples become missing before
-anything else runs: the long-gap bridge and the window pipeline fill them, and they are
-flagged ``recovered``. Farther from a tracked sample the guess stays (``seated_joints.csv``'s
-legs, inferred for 11 s), and so it does in a body's first ``FROZEN_HISTORY_S`` (the fill
-would come from the prior alone, which shows at the hand-overs). The hazard is a limb the
-person really holds still, which is a straight line too: it is replaced by the fill as
-well (the sensor protocol's ``flagged`` kind scores that cost; ``benchmarks/results/sensor.md``
-has the figures).
+second or more while its left/right twin bends is the sensor's frozen or drifting guess
+(:mod:`streamfix.core.frozen`); the hands and feet below it go with it. Within 1-2 s of
+a tracked sample of the same joint (``streamfix.core.inferred.TRACKED_NEAR_S``) these
+samples become missing before anything else runs: the long-gap bridge and the window
+pipeline fill them, and they are flagged ``recovered``. The guess stays farther from a
+tracked sample, beside a twin that is still too (a seated user's legs under a desk in
+``seated_joints.csv``) and in a body's first ``GUESS_HISTORY_S``. The hazard is a limb
+the person really holds still while the other one moves, which looks the same: it is
+replaced by the fill as well (the sensor protocol's ``flagged`` kind scores that cost;
+``benchmarks/results/sensor.md`` has the figures).
 
 Inferred limbs checked against the prior (``verify_inferred``, off by default)
 -----------------------------------------------------------------------------
@@ -143,18 +143,16 @@ PRIOR_LIMITED_LIMBS = ("left_arm", "right_arm")
 applies to: an arm moves on its own, which the rest of the body cannot tell the prior."""
 EXCURSION_HORIZON_S = 1.0
 """Seconds of the joint's observed samples next to a gap that set its range of motion."""
-VERIFY_HISTORY_S = 1.0
-"""Seconds of clean history a body needs before its inferred samples are checked against
-the prior's fill (at a stream's very start the fit differs from window to window)."""
+GUESS_HISTORY_S = 1.0
+"""Seconds of clean history a body needs before a fill may take the place of the sensor's
+inferred samples (frozen limbs released, inferred limbs checked against the prior): at a
+stream's start the fill comes from the prior alone, which differs from window to window
+by more than the hand-over crossfade hides (on ``seated_joints.csv`` releases from the
+first frame on raised the seam ratio from 1.05 to 1.13)."""
 VERIFY_EXCURSION_GAIN: float | None = 1.0
 """Excursion limit of the fill the inferred samples are checked against: looser than the
 gap fill's (its hold baseline is the limb's last tracked pose, which is what a frozen
 limb keeps, so the usual limit pulls the fill onto the very guess being checked)."""
-FROZEN_HISTORY_S = 1.0
-"""Seconds of clean history a body needs before its frozen inferred limbs are released:
-before that the fill comes from the prior alone, which differs from window to window by
-more than the hand-over crossfade hides (on ``seated_joints.csv`` the seam ratio rose from
-1.05 to 1.13 with releases from the first frame on, 1.09 with this wait)."""
 PRIOR_INIT = "off"
 PRIOR_METHOD = "latent"  # fill from D(z*) ("latent") or D(E(Y)) ("encode", cheaper)
 """Prior as the solver's start on the frames entering a window: 'off', 'bridged' (only
@@ -248,7 +246,7 @@ class BridgingWindowSolver:
         self.undo_swaps = bool(undo_swaps)
         self.verify_inferred = bool(verify_inferred)
         self.release_frozen = bool(release_frozen)
-        self._limb_joints: dict[str, np.ndarray] = {}
+        self._limb_joints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # limb joints, mirrors
         if prior_method not in ("latent", "encode"):
             raise ValueError(f"prior_method must be 'latent' or 'encode', got {prior_method!r}")
         self.prior_method = prior_method
@@ -501,29 +499,29 @@ class BridgingWindowSolver:
         from ..core.excursion import parents_from_bones
         from ..core.frozen import frozen_inferred
         from ..core.inferred import tracked_proximity
+        from ..limbs import limb_groups, mirror_index
 
         inferred = (conf > 0) & (conf < 1.0)
-        if not inferred.any() or history is None or len(history) < FROZEN_HISTORY_S * rate_hz:
+        if not inferred.any() or history is None or len(history) < GUESS_HISTORY_S * rate_hz:
             return np.zeros(conf.shape, dtype=bool)
-        limbs = self._limb_joints.get(skeleton.name)
-        if limbs is None:
-            from ..limbs import limb_groups
-
+        layout = self._limb_joints.get(skeleton.name)
+        if layout is None:
             parents = parents_from_bones(skeleton.bone_array, skeleton.n_joints)
             limbs = np.zeros(skeleton.n_joints, dtype=bool)
             for pair in limb_groups(skeleton):
                 for side in pair:
                     limbs[side] = True
             limbs &= (parents >= 0) & limbs[np.maximum(parents, 0)]  # below the limb's root
-            self._limb_joints[skeleton.name] = limbs
-        frozen = frozen_inferred(x, inferred, parents_from_bones(bones, x.shape[1]), limbs, rate_hz)
+            layout = self._limb_joints[skeleton.name] = (limbs, mirror_index(skeleton))
+        limbs, mirror = layout
+        frozen = frozen_inferred(x, inferred, parents_from_bones(bones, x.shape[1]), limbs, rate_hz, mirror=mirror)
         return frozen & (tracked_proximity(conf >= 1.0, rate_hz) > 0)
 
     def _verify_inferred(self, x, conf, obs, bones, rate_hz, history, skeleton: Skeleton):
         """(positions, confidence, replaced mask or None): long runs of inferred samples
         moved toward the bridging fill where they part from it (core/inferred.py)."""
         inferred = obs & (conf < 1.0)
-        if not inferred.any() or history is None or len(history) < VERIFY_HISTORY_S * rate_hz:
+        if not inferred.any() or history is None or len(history) < GUESS_HISTORY_S * rate_hz:
             # the fill is only trusted over the sensor's guess once the body has a clean
             # history to train PCA on (the prior alone, at a stream's start, differs from
             # window to window by more than the sensor's inferred limbs do)
