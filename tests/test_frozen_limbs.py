@@ -145,14 +145,17 @@ def test_a_short_bone_follows_its_parent_and_does_not_decide_alone():
 
 
 # --------------------------------------------------------------------------- engine, real data
-def _walk_with_failed_arm(shared_data, drift_m_s: float = 0.0, move: bool = True):
+def walk_with_failed_arm(shared_data, drift_m_s: float = 0.0, move: bool = True, a: int = 90, b: int = 150):
+    """CMU 131_01 (walking) as Kinect v2 joints, its left arm from the elbow down flagged
+    inferred over frames [a, b) and (``move``) frozen in its pose relative to the shoulder
+    (carried along by the body), drifting at ``drift_m_s``. Returns
+    (truth, positions, confidence, arm joints, a, b)."""
     from streamfix.evaluation.sensor import ground_truth
 
     truth = ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", RATE).positions
     names = KV2.joint_names
     arm = np.array([names.index(n) for n in ("ElbowLeft", "WristLeft", "HandLeft", "HandTipLeft", "ThumbLeft")])
     shoulder = names.index("ShoulderLeft")
-    a, b = 90, 150  # 2 s, after 3 s of history
     assert len(truth) > b + 30
     x = truth.copy()
     conf = np.ones(truth.shape[:2])
@@ -171,7 +174,7 @@ def _err(y, truth, a, b, arm) -> float:
 def test_the_default_engine_replaces_a_frozen_or_drifting_inferred_arm(shared_data):
     cfg = EngineConfig(rate_hz=RATE)
     for drift in (0.0, 0.063):
-        truth, x, conf, arm, a, b = _walk_with_failed_arm(shared_data, drift)
+        truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data, drift)
         motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
         out, _ = clean_motion(motion, cfg)
         kept, _ = clean_motion(motion, cfg, BridgingWindowSolver(release_frozen=False))
@@ -185,7 +188,7 @@ def test_the_default_engine_replaces_a_frozen_or_drifting_inferred_arm(shared_da
 
 
 def test_an_inferred_arm_that_is_right_is_left_alone(shared_data):
-    truth, x, conf, arm, a, b = _walk_with_failed_arm(shared_data, move=False)
+    truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data, move=False)
     motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
     out, _ = clean_motion(motion, EngineConfig(rate_hz=RATE))
     assert not out.recovered[a:b, arm].any()
@@ -199,7 +202,7 @@ def test_a_still_inferred_arm_that_is_right_costs_a_bounded_error(shared_data):
     moving body the fill swings it: 14 cm off on average over these 2 s, where the same
     arm frozen while it really swung is 38 cm off raw and 28 cm cleaned. The sensor
     protocol's ``flagged`` kind scores this hazard over many takes."""
-    truth, x, conf, arm, a, b = _walk_with_failed_arm(shared_data)
+    truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data)
     truth = x.copy()  # the person really holds the arm still relative to the shoulder
     motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
     out, _ = clean_motion(motion, EngineConfig(rate_hz=RATE))

@@ -6,14 +6,14 @@ prior's fill, whose error on a swinging arm is larger than the check's threshold
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from streamfix.core.inferred import replacement_weight, tracked_proximity
-from streamfix.motion import CONFIDENCE_INFERRED, Motion
+from streamfix.motion import Motion
 from streamfix.skeletons import get_skeleton
 from streamfix.streaming.bridging import BridgingWindowSolver
 from streamfix.streaming.engine import EngineConfig
 from streamfix.streaming.offline import clean_motion
+from test_frozen_limbs import walk_with_failed_arm
 
 KV2 = get_skeleton("kinect_v2")
 RATE = 30.0
@@ -42,25 +42,8 @@ def test_replacement_weight_keeps_agreeing_samples_and_shares_a_limb():
     assert (replacement_weight(x, fill, cand, np.zeros_like(cand)) == 0).all()
 
 
-def _walk_with_frozen_arm(shared_data):
-    from streamfix.evaluation.sensor import ground_truth
-
-    truth = ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", RATE).positions
-    names = KV2.joint_names
-    arm = np.array([names.index(n) for n in ("ElbowLeft", "WristLeft", "HandLeft", "HandTipLeft", "ThumbLeft")])
-    shoulder = names.index("ShoulderLeft")
-    a, b = 60, 105  # 1.5 s, after 2 s of history
-    assert len(truth) > b + 30
-    x = truth.copy()
-    conf = np.ones(truth.shape[:2])
-    pose = truth[a - 1, arm] - truth[a - 1, shoulder]
-    x[a:b, arm] = truth[a:b, shoulder][:, None] + pose[None]   # carried along, frozen in its pose
-    conf[a:b, arm] = CONFIDENCE_INFERRED
-    return truth, x, conf, arm, a, b
-
-
 def test_a_frozen_inferred_arm_on_a_walking_body_is_pulled_toward_the_truth(shared_data):
-    truth, x, conf, arm, a, b = _walk_with_frozen_arm(shared_data)
+    truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data, a=60, b=105)  # 1.5 s, after 2 s of history
     motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
     cfg = EngineConfig(rate_hz=RATE)
     # without the frozen-limb release (on by default, tests/test_frozen_limbs.py), which frees this arm itself
