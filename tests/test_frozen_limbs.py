@@ -126,6 +126,23 @@ def test_a_rigid_limb_beside_a_still_twin_is_a_person_holding_still():
     assert frozen_inferred(still, inferred, parents, limbs, RATE)[30:75, 1:4].all()  # without the twin test
 
 
+def test_a_run_without_a_measure_is_not_frozen_and_a_missing_twin_does_not_object():
+    T = 90
+    x, parents, limbs, mirror = _two_arms(T)
+    inferred = np.zeros((T, 7), dtype=bool)
+    inferred[30:75, 1:4] = True
+    frozen = x.copy()
+    frozen[30:75, 1:4] = x[29, 1:4][None]
+    lost_twin = frozen.copy()
+    lost_twin[:, 4:] = np.nan  # the right arm is not seen at all
+    got = frozen_inferred(lost_twin, inferred, parents, limbs, RATE, mirror=mirror)
+    assert got[30:75, 1:4].all()
+    no_parent = frozen.copy()
+    no_parent[:, 0] = np.nan  # the left elbow's articulation cannot be measured anywhere
+    got = frozen_inferred(no_parent, inferred, parents, limbs, RATE, mirror=mirror)
+    assert not got[:, 1].any()
+
+
 def test_a_short_bone_follows_its_parent_and_does_not_decide_alone():
     parents, limbs = _arm_layout()
     T = 90

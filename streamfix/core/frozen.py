@@ -90,6 +90,18 @@ def articulation(positions: np.ndarray, parents: np.ndarray, span: int, joints: 
     return out
 
 
+def _run_medians(values: np.ndarray, label: np.ndarray, n_runs: int) -> np.ndarray:
+    """``(n_runs,)``: the median of the finite ``values`` under each label 1..n_runs
+    (``values``, ``label`` of one shape, 0 = no run); NaN for a run with none."""
+    ok = np.isfinite(values) & (label > 0)
+    counts = np.bincount(label[ok], minlength=n_runs + 1)[1:]
+    med = np.full(n_runs, np.nan)
+    idx = np.flatnonzero(counts) + 1
+    if len(idx):
+        med[idx - 1] = ndimage.median(np.where(ok, values, 0.0), labels=np.where(ok, label, 0), index=idx)
+    return med
+
+
 def frozen_inferred(
     positions: np.ndarray,
     inferred: np.ndarray,
@@ -151,20 +163,13 @@ def frozen_inferred(
     label = np.cumsum(starts.ravel()).reshape(J, T) * runs
     n_runs = int(label.max())
     if n_runs:
-        art_t = art.T
-        scored = np.where(np.isfinite(art_t), label, 0)
-        with np.errstate(invalid="ignore"):
-            med = np.asarray(ndimage.median(np.nan_to_num(art_t), labels=scored, index=np.arange(1, n_runs + 1)))
-        frozen_run = np.concatenate([[False], np.nan_to_num(med, nan=np.inf) < rigid_m])
+        med = _run_medians(art.T, label, n_runs)
+        frozen_run = np.concatenate([[False], med < rigid_m])  # NaN (no measure): not frozen
         if mirror is not None:
             # the same frames of the mirror joint: a limb held still beside a still twin is a
             # person holding still; beside a moving twin, the sensor's guess
-            twin = np.asarray(mirror, dtype=np.intp)
-            art_m = art[:, twin].T  # (J, T): the mirror's articulation, on each joint's row
-            scored_m = np.where(np.isfinite(art_m), label, 0)
-            with np.errstate(invalid="ignore"):
-                med_m = np.asarray(ndimage.median(np.nan_to_num(art_m), labels=scored_m, index=np.arange(1, n_runs + 1)))
-            frozen_run[1:] &= np.nan_to_num(med_m, nan=np.inf) >= rigid_m
+            twin_med = _run_medians(art[:, np.asarray(mirror, dtype=np.intp)].T, label, n_runs)
+            frozen_run[1:] &= ~(twin_med < rigid_m)  # NaN (twin not measured): no objection
         out |= frozen_run[label].T
     followers = np.flatnonzero(limbs & ~deciding & (par >= 0))
     for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)
