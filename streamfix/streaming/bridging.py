@@ -494,8 +494,9 @@ class BridgingWindowSolver:
         sample of the same joint (core/frozen.py). A limb inferred for longer than
         ``TRACKED_NEAR_S`` (a seated person's legs under a desk) keeps the sensor's guess:
         with no tracked sample to anchor a fill, the fill guesses worse (on
-        ``seated_joints.csv``, releasing them for 4 s made the legs jitter more than
-        median + Savitzky-Golay's and a filled hand 7 % longer than its guessed twin)."""
+        ``seated_joints.csv``, before the twin test, releasing them for 4 s made the legs
+        jitter more than median + Savitzky-Golay's and a filled hand 7 % longer than its
+        guessed twin)."""
         from ..core.excursion import parents_from_bones
         from ..core.frozen import frozen_inferred
         from ..core.inferred import tracked_proximity
