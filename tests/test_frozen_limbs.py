@@ -110,13 +110,20 @@ def _two_arms(T: int):
     return x, parents, limbs, mirror
 
 
-def test_a_rigid_limb_beside_a_still_twin_is_a_person_holding_still():
-    T = 90
+def _left_arm_frozen(T: int = 90):
+    """``_two_arms`` with the left arm flagged inferred over frames 30-74 and frozen there
+    in its frame-29 pose; returns (true positions, frozen positions, inferred, parents,
+    limbs, mirror)."""
     x, parents, limbs, mirror = _two_arms(T)
     inferred = np.zeros((T, 7), dtype=bool)
     inferred[30:75, 1:4] = True
     frozen = x.copy()
     frozen[30:75, 1:4] = x[29, 1:4][None]  # the left arm stops bending
+    return x, frozen, inferred, parents, limbs, mirror
+
+
+def test_a_rigid_limb_beside_a_still_twin_is_a_person_holding_still():
+    x, frozen, inferred, parents, limbs, mirror = _left_arm_frozen()
     # the right arm swings on: the left one is the sensor's guess
     assert frozen_inferred(frozen, inferred, parents, limbs, RATE, mirror=mirror)[30:75, 1:4].all()
     # the right arm is still too: the person holds both still
@@ -127,12 +134,7 @@ def test_a_rigid_limb_beside_a_still_twin_is_a_person_holding_still():
 
 
 def test_a_run_without_a_measure_is_not_frozen_and_a_missing_twin_does_not_object():
-    T = 90
-    x, parents, limbs, mirror = _two_arms(T)
-    inferred = np.zeros((T, 7), dtype=bool)
-    inferred[30:75, 1:4] = True
-    frozen = x.copy()
-    frozen[30:75, 1:4] = x[29, 1:4][None]
+    x, frozen, inferred, parents, limbs, mirror = _left_arm_frozen()
     lost_twin = frozen.copy()
     lost_twin[:, 4:] = np.nan  # the right arm is not seen at all
     got = frozen_inferred(lost_twin, inferred, parents, limbs, RATE, mirror=mirror)
