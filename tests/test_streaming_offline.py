@@ -101,3 +101,26 @@ def test_offline_clean_equals_engine_clean_when_a_window_fails(kinect):
     got, metrics = clean_motion(motion, cfg, failing_solver())
     assert metrics["live_out"] > 0                         # it re-ran with the live path
     assert np.array_equal(got.positions, expect, equal_nan=True)
+
+
+def test_file_schedule_solves_half_the_windows_and_keeps_its_settings_consistent(kinect):
+    """EngineConfig.for_files: a window every 2/3 s, 1.5 s lookahead, 0.5 s crossfade at any
+    rate, clamped to what the window allows; the offline clean on it solves half of serve's
+    windows; an unknown schedule name is refused."""
+    from streamfix.streaming.config import schedule_config
+
+    cfg = EngineConfig.for_files(30.0)
+    assert (cfg.window, cfg.hop, cfg.lookahead, cfg.handover_s) == (60, 20, 45, 0.5)
+    assert (EngineConfig.for_files(120.0).hop, EngineConfig.for_files(120.0).lookahead) == (80, 180)
+    short = EngineConfig.for_files(30.0, window=30)
+    assert short.lookahead == 29 and short.hop == 20
+    assert EngineConfig.for_files(30.0, lookahead_s=0.5).hop == 16  # hop <= lookahead + 1
+    assert schedule_config("serve", 30.0, hop=None) == EngineConfig(rate_hz=30.0)
+    assert schedule_config("file", 30.0, window=None) == cfg
+    with pytest.raises(ValueError, match="schedule must be one of file, serve"):
+        schedule_config("batch", 30.0)
+    with pytest.raises(ValueError, match="handover_s"):
+        EngineConfig(rate_hz=30.0, handover_s=0.0)
+    _, on_files = clean_motion(kinect, cfg)
+    _, on_serve = clean_motion(kinect, EngineConfig(rate_hz=kinect.rate_hz))
+    assert on_files["windows_solved"] * 2 <= on_serve["windows_solved"] + 2

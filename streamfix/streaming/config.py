@@ -8,13 +8,24 @@ from typing import Any
 
 import numpy as np
 
+from .blending import HANDOVER_S
 from .live import LiveConfig
 
-__all__ = ["EngineConfig", "DEFAULT_WINDOW_S", "DEFAULT_LOOKAHEAD_S", "DEFAULT_HOP_S"]
+__all__ = [
+    "EngineConfig", "DEFAULT_WINDOW_S", "DEFAULT_LOOKAHEAD_S", "DEFAULT_HOP_S",
+    "FILE_HOP_S", "FILE_LOOKAHEAD_S", "FILE_HANDOVER_S", "SCHEDULES", "schedule_config",
+]
 
 DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
 DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean latency)
 DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
+
+# The schedule for files (EngineConfig.for_files): nobody waits for a frame of a file, so
+# each frame can take its value from windows that hold it near their middle instead of
+# near their newest edge, and half as many windows need solving.
+FILE_HOP_S = 2.0 / 3.0  # H: 20 frames at 30 Hz
+FILE_LOOKAHEAD_S = 1.5  # L: 45 frames at 30 Hz: a frame is 0.7-1.5 s from its windows' newest frame
+FILE_HANDOVER_S = 0.5  # crossfade: the windows share 0.87 s, and a longer fade hides the hand-over
 
 
 @dataclass(frozen=True)
@@ -49,6 +60,8 @@ class EngineConfig:
     failed or was skipped), which is then NaN and recovered instead of the live value;
     ``metrics()['joints_live_fallback']`` counts such joint-frames (the offline runner
     re-runs with the live path when it is not 0).
+    handover_s: the crossfade at a window hand-over, seconds (at most the frames two
+    consecutive windows share; see :func:`streamfix.streaming.blending.handover_weights`).
     """
 
     window: int | None = None
@@ -73,6 +86,28 @@ class EngineConfig:
     lookahead_s: float | None = None
     live_anchor: bool = False
     live_output: bool = True
+    handover_s: float = HANDOVER_S
+
+    @classmethod
+    def for_files(cls, rate_hz: float = 30.0, **settings: Any) -> "EngineConfig":
+        """The schedule ``streamfix clean`` uses for recordings: hop ``FILE_HOP_S``,
+        lookahead ``FILE_LOOKAHEAD_S``, crossfade ``FILE_HANDOVER_S`` (``settings`` override
+        any field). The same window solver as ``serve``'s; the clean topic's 0.5 s latency
+        bound does not apply to a file."""
+        rate = float(rate_hz)
+        if not (np.isfinite(rate) and rate > 0):
+            raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
+        window = settings.pop("window", None) or max(1, int(round(DEFAULT_WINDOW_S * rate)))
+        lookahead = settings.pop("lookahead", None)
+        lookahead_s = settings.pop("lookahead_s", None)
+        if lookahead_s is not None:
+            lookahead = int(round(float(lookahead_s) * rate))
+        elif lookahead is None:
+            lookahead = min(max(0, int(round(FILE_LOOKAHEAD_S * rate))), window - 1)
+        hop = settings.pop("hop", None) or min(max(1, int(round(FILE_HOP_S * rate))), lookahead + 1)
+        base: dict[str, Any] = {"window": window, "hop": hop, "lookahead": lookahead, "handover_s": FILE_HANDOVER_S}
+        base.update(settings)
+        return cls(rate_hz=rate, **base)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -91,6 +126,8 @@ class EngineConfig:
                 if name == "hop":
                     n = min(n, self.lookahead + 1)
                 object.__setattr__(self, name, n)
+        if not (np.isfinite(self.handover_s) and self.handover_s > 0):
+            raise ValueError(f"handover_s must be a positive number of seconds, got {self.handover_s}")
         W, H, L = self.window, self.hop, self.lookahead
         if W < 4:
             raise ValueError(f"window must be >= 4 frames (typically 50-300), got {W}")
@@ -115,3 +152,19 @@ class EngineConfig:
     @property
     def hop_limit(self) -> int:
         return self.max_hop if self.max_hop is not None else max(self.hop, self.window // 2)
+
+
+SCHEDULES = ("file", "serve")
+"""Window schedules: ``file`` (:meth:`EngineConfig.for_files`, what ``streamfix clean``
+runs) and ``serve`` (the :class:`EngineConfig` defaults, ``serve``'s ``clean`` topic)."""
+
+
+def schedule_config(schedule: str, rate_hz: float, **settings: Any) -> EngineConfig:
+    """The :class:`EngineConfig` of a named schedule (:data:`SCHEDULES`) at ``rate_hz``;
+    ``settings`` (None values ignored) override its fields."""
+    given = {k: v for k, v in settings.items() if v is not None}
+    if schedule == "file":
+        return EngineConfig.for_files(rate_hz, **given)
+    if schedule == "serve":
+        return EngineConfig(rate_hz=float(rate_hz), **given)
+    raise ValueError(f"schedule must be one of {', '.join(SCHEDULES)}, got {schedule!r}")

@@ -730,7 +730,7 @@ class StreamEngine:
         if lo >= job.end:
             return
         T = job.end - job.start
-        crossfade = max(1, int(round(HANDOVER_S * self.cfg.rate_hz)))
+        crossfade = max(1, int(round(self.cfg.handover_s * self.cfg.rate_hz)))
         w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, self.hop, crossfade)
         x = job.result_pos[lo - job.start:]
         r = job.result_rec[lo - job.start:].astype(np.float64)
