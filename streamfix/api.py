@@ -7,7 +7,7 @@ project's outputs you get; each is the same code the command line and the servic
 
 ``"offline"``
     what ``streamfix clean`` writes (:func:`streamfix.cleaning.clean_recording`: the gap
-    filler on long gaps, then the streaming engine).
+    filler on long gaps, then the streaming engine on the file schedule, 1.5 s lookahead).
 ``"stream"``
     what ``streamfix serve`` publishes on its ``clean`` topic (the streaming engine,
     synchronous, with serve's default window, hop and 0.5 s lookahead; a threaded
@@ -52,7 +52,7 @@ from .skeletons import Skeleton, get_skeleton
 __all__ = ["clean", "MODES"]
 
 MODES = {
-    "offline": "what `streamfix clean` writes: gap filler on long gaps, then the streaming engine",
+    "offline": "what `streamfix clean` writes: gap filler on long gaps, then the streaming engine (file schedule)",
     "stream": "what `streamfix serve` publishes on `clean`",
     "live": "what `streamfix serve` publishes on `live` (causal, no lookahead)",
 }

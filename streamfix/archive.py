@@ -49,7 +49,8 @@ SUMMARY_NAME = "streamfix-clean-summary.json"
 class ArchiveOptions:
     """How each file is cleaned (the single-file ``streamfix clean`` options).
 
-    window, hop, lookahead: frames (None = the engine's defaults at the file's rate).
+    window, hop, lookahead: frames, lookahead_s: seconds (None = the schedule's, at the
+    file's rate). schedule: ``file`` or ``serve`` (:func:`streamfix.streaming.config.schedule_config`).
     gapfill: run the gap filler on long gaps. training: reference takes for it.
     keep_filled: keep frames synthesised for sensor drops. prior: a trained prior's card
     or directory (None = the shipped one).
@@ -58,6 +59,8 @@ class ArchiveOptions:
     window: int | None = None
     hop: int | None = None
     lookahead: int | None = None
+    lookahead_s: float | None = None
+    schedule: str = "file"
     gapfill: bool = True
     training: tuple[str, ...] | None = None
     keep_filled: bool = False
@@ -141,7 +144,7 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
     try:
         from .cleaning import clean_recording
         from .io import read_motion, write_motion
-        from .streaming.engine import EngineConfig
+        from .streaming.config import schedule_config
 
         if options.prior != _PRIOR_SET[0]:
             from .prior.runtime import set_default_prior
@@ -149,8 +152,8 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
             set_default_prior(options.prior)
             _PRIOR_SET[0] = options.prior
         motion = read_motion(input_path)
-        config = EngineConfig(window=options.window, hop=options.hop, lookahead=options.lookahead,
-                              rate_hz=motion.rate_hz)
+        config = schedule_config(options.schedule, motion.rate_hz, window=options.window, hop=options.hop,
+                                 lookahead=options.lookahead, lookahead_s=options.lookahead_s)
         result = clean_recording(motion, config, gapfill=options.gapfill,
                                  training=list(options.training) if options.training else None,
                                  keep_filled=options.keep_filled)

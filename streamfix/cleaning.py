@@ -11,8 +11,12 @@ bridges itself) and marker files without bones first go through the gap filler
 (:func:`streamfix.gapfill.fill_motion_gaps`, PCA trained on the take's own observed
 samples plus optional reference takes): offline the filler sees both ends of every gap.
 Then the streaming engine runs in synchronous mode
-(:func:`streamfix.streaming.offline.clean_motion`), so the result equals ``serve``'s
-``clean`` output on the gap-filled frames. Filled samples stay flagged recovered.
+(:func:`streamfix.streaming.offline.clean_motion`) on the file schedule
+(:meth:`~streamfix.streaming.engine.EngineConfig.for_files`): the same window solver as
+``serve``, with each frame taken from windows that hold it near their middle (a file has
+no latency bound) and half as many windows solved. Given ``serve``'s schedule
+(``EngineConfig(rate_hz=...)``) the result equals ``serve``'s ``clean`` output on the
+gap-filled frames. Filled samples stay flagged recovered.
 """
 from __future__ import annotations
 
@@ -64,14 +68,14 @@ def clean_recording(
 ) -> CleanedRecording:
     """Clean one recording the way ``streamfix clean`` does (gap filler when needed, then the engine).
 
-    ``config`` None = :class:`EngineConfig` at the motion's rate. ``gapfill`` False skips
+    ``config`` None = :meth:`EngineConfig.for_files` at the motion's rate. ``gapfill`` False skips
     the gap filler; ``training``: reference takes for it (files / directories). Raises
     ``ValueError`` / ``OSError`` from the gap filler with a message saying so.
     """
     from .streaming.bridging import long_gap_frames
     from .streaming.offline import clean_motion
 
-    cfg = config if config is not None else EngineConfig(rate_hz=motion.rate_hz)
+    cfg = config if config is not None else EngineConfig.for_files(motion.rate_hz)
     source = motion
     notes: list[str] = []
     gapfilled = None

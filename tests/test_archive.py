@@ -126,3 +126,18 @@ def test_outputs_inside_the_input_folder_are_not_cleaned_again(shared_data, tmp_
     summary = _summary(out)
     assert summary["inputs"] == len(takes) and summary["skipped"] == len(takes)
     assert not (out / "cleaned").exists()
+
+
+def test_a_folder_takes_the_single_file_schedule_options(shared_data, tmp_path):
+    """--lookahead (seconds or frames, as for one file) and --schedule reach every file of a folder:
+    each output equals ``streamfix clean FILE OUT`` with the same options (a lookahead of
+    '15f' once reached the engine as text and failed every file)."""
+    takes = _slices(shared_data, tmp_path / "in", 2)
+    for k, opts in enumerate((["--lookahead", "15f"], ["--lookahead", "0.5"], ["--schedule", "serve"])):
+        out = tmp_path / f"out{k}"
+        assert main(["clean", str(tmp_path / "in"), str(out), "--quiet", *opts]) == 0
+        assert _summary(out)["failed"] == 0
+        single = tmp_path / f"single{k}.csv"
+        assert main(["clean", str(takes[0]), str(single), "--quiet", *opts]) == 0
+        assert (out / "take00.csv").read_bytes() == single.read_bytes()
+    assert main(["clean", str(tmp_path / "in"), str(tmp_path / "bad"), "--quiet", "--lookahead", "soon"]) == 2

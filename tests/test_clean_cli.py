@@ -26,9 +26,15 @@ def test_clean_kinect_file_writes_readable_file_with_same_frames(shared_data, tm
     assert np.isfinite(b.positions).all()  # nothing left missing
     change = np.linalg.norm(b.positions - a.positions, axis=2)[a.observed]
     assert 0 < np.median(change) < 0.05  # cleaned, not replaced
-    # the file is what the engine emits on clean (within the CSV's 9 digits)
-    expect, _ = clean_motion(a, EngineConfig(rate_hz=a.rate_hz))
+    # the file is what the engine emits on clean on the file schedule (within the CSV's 9 digits)
+    expect, _ = clean_motion(a, EngineConfig.for_files(a.rate_hz))
     np.testing.assert_allclose(b.positions, expect.positions, atol=1e-6)
+    # and with --schedule serve, what serve publishes on its clean topic
+    served = tmp_path / "served.csv"
+    assert main(["clean", str(src), str(served), "--schedule", "serve", "--quiet"]) == 0
+    topic, _ = clean_motion(a, EngineConfig(rate_hz=a.rate_hz))
+    np.testing.assert_allclose(read_motion(served).positions, topic.positions, atol=1e-6)
+    assert np.abs(topic.positions - expect.positions).max() > 1e-3  # the two schedules differ
 
 
 def test_clean_rejects_wrong_number_of_skeleton_lengths(shared_data, tmp_path, capsys):

@@ -32,9 +32,10 @@ AJE_TOLERANCE_M = 0.005
 
 
 def _clean_reference(path, tmp_path) -> np.ndarray:
-    """``streamfix clean IN OUT`` (the command, run in this process): cleaned real frames (T, J, 3)."""
+    """``streamfix clean IN OUT --schedule serve`` (the command, run in this process): cleaned
+    real frames (T, J, 3) on serve's schedule."""
     out = tmp_path / f"{path.stem}.clean.sfrec"
-    assert cli_main(["clean", str(path), str(out), "--quiet"]) == 0
+    assert cli_main(["clean", str(path), str(out), "--schedule", "serve", "--quiet"]) == 0
     return read_motion(out).positions
 
 

@@ -55,7 +55,7 @@ def test_clean_cli_kinect_csv_to_bvh(shared_data, tmp_path, capsys):
     assert main(["clean", str(src), str(out), "--quiet"]) == 0
     back = read_bvh(out)
     assert back.meta["scale"] == 1.0  # a new hierarchy, in metres
-    expect, _ = clean_motion(read_motion(src), EngineConfig(rate_hz=read_motion(src).rate_hz))
+    expect, _ = clean_motion(read_motion(src), EngineConfig.for_files(read_motion(src).rate_hz))
     idx = [back.skeleton.index(n) for n in expect.skeleton.joint_names]
     assert back.n_frames == expect.n_frames
     assert np.linalg.norm(back.positions[:, idx] - expect.positions, axis=2).max() < 1e-3

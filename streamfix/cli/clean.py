@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-HELP = "Clean a recorded motion file offline (the same engine as serve's clean output)."
+HELP = "Clean a recorded motion file offline (the engine of serve's clean output, on a schedule for files)."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,10 +40,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", type=int, default=None, metavar="W",
                         help="frames per solved window (default: 2 s at the file's rate)")
     parser.add_argument("--hop", type=int, default=None, metavar="H",
-                        help="frames between window solves (default: 1/3 s, at most lookahead+1)")
+                        help="frames between window solves (default: 2/3 s, at most lookahead+1)")
     parser.add_argument("--lookahead", default=None, metavar="L",
-                        help="lookahead per output frame, as in serve: seconds (0.5 or 0.5s) or frames (15f); "
-                             "default 0.5 s")
+                        help="lookahead per output frame, as in serve: seconds (1.5 or 1.5s) or frames (45f); "
+                             "default 1.5 s (a file has no latency bound; serve's 0.5 s gives serve's clean topic)")
+    parser.add_argument("--schedule", choices=("file", "serve"), default="file",
+                        help="window schedule: 'file' (default: 1.5 s lookahead, a window every 2/3 s) or "
+                             "'serve' (serve's clean topic exactly: 0.5 s lookahead, a window every 1/3 s); "
+                             "--window/--hop/--lookahead override either")
     parser.add_argument("--skeleton-lengths", default=None, metavar="LENGTHS",
                         help="fixed bone lengths in metres: comma-separated B values, or a file of them "
                              "(one per line or comma-separated), in the skeleton's bone order")
@@ -116,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         print("streamfix clean: --jobs, --cluster and --summary apply when IN is a folder or a glob", file=sys.stderr)
         return 2
     from ..io import WRITE_FORMATS, check_writable, read_motion, write_motion
-    from ..streaming.engine import EngineConfig
+    from ..streaming.config import schedule_config
     from ..cleaning import clean_recording
     from .outputs import check_output
 
@@ -148,10 +152,8 @@ def run(args: argparse.Namespace) -> int:
         from ..service.engines import parse_lookahead  # one --lookahead syntax for serve and clean
 
         seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
-        config = EngineConfig(
-            window=args.window, hop=args.hop, lookahead=frames, lookahead_s=seconds, rate_hz=motion.rate_hz,
-            bone_lengths=lengths,
-        )
+        config = schedule_config(args.schedule, motion.rate_hz, window=args.window, hop=args.hop, lookahead=frames,
+                                 lookahead_s=seconds, bone_lengths=lengths)
     except ValueError as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 2
@@ -229,8 +231,15 @@ def _run_archive(args: argparse.Namespace) -> int:
 
     if not apply_prior_option("clean", args.prior):  # checked here once, before any worker loads it
         return 2
+    from ..service.engines import parse_lookahead
+
+    try:
+        seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
+    except ValueError as exc:
+        return fail(str(exc))
     options = ArchiveOptions(
-        window=args.window, hop=args.hop, lookahead=args.lookahead, gapfill=not args.no_gapfill,
+        window=args.window, hop=args.hop, lookahead=frames, lookahead_s=seconds, schedule=args.schedule,
+        gapfill=not args.no_gapfill,
         training=tuple(str(Path(t).resolve()) for t in args.training) if args.training else None,
         keep_filled=args.keep_filled, prior=str(Path(args.prior).resolve()) if args.prior else None,
     )

@@ -3,7 +3,7 @@
 ``load_report_data`` reads the input (any file ``streamfix.io.read_motion`` reads, or a
 UI-PRMD repetition ``uiprmd_s01-s06.npz:KEY`` that brings its optical reference),
 takes the cleaned motion from a file or cleans it with the streaming engine
-(:func:`streamfix.streaming.offline.clean_motion`, what ``streamfix clean`` writes),
+(:func:`streamfix.streaming.offline.clean_motion` on the file schedule, what ``streamfix clean`` writes),
 and picks the joints to plot. ``write_report`` renders :data:`.figures.FIGURES`.
 """
 from __future__ import annotations
@@ -42,9 +42,10 @@ def report_from_motions(name: str, raw: Motion, clean: Motion | None = None, *,
                         reference: np.ndarray | None = None, joints: list[str] | None = None) -> ReportData:
     """A :class:`ReportData` from motions in memory; ``clean`` None = clean ``raw`` with the engine."""
     if clean is None:
+        from ..streaming.engine import EngineConfig
         from ..streaming.offline import clean_motion
 
-        clean, _ = clean_motion(raw)
+        clean, _ = clean_motion(raw, EngineConfig.for_files(raw.rate_hz))
     if clean.positions.shape != raw.positions.shape:
         raise ValueError(f"{name}: the cleaned motion has shape {clean.positions.shape}, the input "
                          f"{raw.positions.shape}; expected the same frames and joints")
