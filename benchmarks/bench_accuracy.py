@@ -14,7 +14,8 @@ Runs, with fixed seeds:
 
 Usage: ``python benchmarks/bench_accuracy.py [--seed N] [--json OUT]``. Writes
 ``benchmarks/results/accuracy.json`` (every record) and ``accuracy.md`` (what it printed).
-``streamfix`` is the engine's clean output (what users get); ``streamfix_whole`` the
+``streamfix`` is the engine's clean output as ``streamfix clean`` writes it (the file
+schedule, :meth:`~streamfix.streaming.engine.EngineConfig.for_files`); ``streamfix_whole`` the
 whole-take function, printed beside it.
 """
 from __future__ import annotations

@@ -5,7 +5,9 @@ Runs :mod:`streamfix.evaluation.paired` on the whole trustworthy UI-PRMD subset 
 one table per dataset and body region, and writes ``benchmarks/results/paired.json``
 (records, bars, run details) and ``benchmarks/results/paired.md`` (the tables and bars).
 
-Bars (issue 8, the ``streamfix`` method; "debiased" = each joint's mean offset removed):
+Bars (issue 8; "debiased" = each joint's mean offset removed), for the ``streamfix`` method
+(what ``streamfix clean`` writes) and again for ``streamfix_serve`` (``serve``'s ``clean``
+topic), each method's seam at its own schedule's window hand-overs:
 
 * UI-PRMD, upper body and lower body each: debiased mean error <= 0.9x the input's and
   lower than every baseline's;
@@ -58,8 +60,9 @@ def _get(records: list[dict], dataset: str, method: str, region: str) -> dict | 
     return next((r for r in records if (r["dataset"], r["method"], r["region"]) == (dataset, method, region)), None)
 
 
-def check_bars(records: list[dict]) -> list[dict]:
-    """``[{bar, value, target, ok}]`` for the issue-8 bars on paired data."""
+def check_bars(records: list[dict], method: str = "streamfix") -> list[dict]:
+    """``[{bar, value, target, ok}]`` for the issue-8 bars on paired data, for ``method``
+    (``streamfix``: what ``clean`` writes; ``streamfix_serve``: serve's clean topic)."""
     bars: list[dict] = []
 
     def bar(name: str, value, target: float, ok: bool | None = None) -> None:
@@ -68,7 +71,7 @@ def check_bars(records: list[dict]) -> list[dict]:
         bars.append({"bar": name, "value": value, "target": target, "ok": bool(ok)})
 
     def rel(dataset, region, key):
-        s, i = _get(records, dataset, "streamfix", region), _get(records, dataset, "input", region)
+        s, i = _get(records, dataset, method, region), _get(records, dataset, "input", region)
         if s is None or i is None or s[key] is None or not i[key]:
             return None
         return s[key] / i[key]
@@ -76,26 +79,26 @@ def check_bars(records: list[dict]) -> list[dict]:
     datasets = list(dict.fromkeys(r["dataset"] for r in records))
     if "uiprmd" in datasets:
         for region in ("upper", "lower"):
-            bar(f"uiprmd {region}: streamfix debiased mean / input", rel("uiprmd", region, "debiased_mean_m"),
+            bar(f"uiprmd {region}: {method} debiased mean / input", rel("uiprmd", region, "debiased_mean_m"),
                 UIPRMD_MEAN_X_INPUT)
-            s = _get(records, "uiprmd", "streamfix", region)
+            s = _get(records, "uiprmd", method, region)
             others = [r for r in records if r["dataset"] == "uiprmd" and r["region"] == region
                       and r["method"] != "input" and not r["method"].startswith("streamfix")]
             best = min(others, key=lambda r: r["debiased_mean_m"], default=None)
             if best is not None:
                 value = None if s is None else s["debiased_mean_m"] / best["debiased_mean_m"]
-                bars.append({"bar": f"uiprmd {region}: streamfix debiased mean / best baseline ({best['method']})",
+                bars.append({"bar": f"uiprmd {region}: {method} debiased mean / best baseline ({best['method']})",
                              "value": value, "target": 1.0, "ok": value is not None and value < 1.0})
-        bar("uiprmd all: streamfix debiased p95 / input", rel("uiprmd", "all", "debiased_p95_m"), UIPRMD_P95_X_INPUT)
-        s = _get(records, "uiprmd", "streamfix", "all")
-        bar("uiprmd all: streamfix jitter / reference", None if s is None else s["jitter_ratio"],
+        bar(f"uiprmd all: {method} debiased p95 / input", rel("uiprmd", "all", "debiased_p95_m"), UIPRMD_P95_X_INPUT)
+        s = _get(records, "uiprmd", method, "all")
+        bar(f"uiprmd all: {method} jitter / reference", None if s is None else s["jitter_ratio"],
             UIPRMD_JITTER_X_REFERENCE)
     if "keraal" in datasets:
-        bar("keraal all: streamfix debiased mean / input", rel("keraal", "all", "debiased_mean_m"), KERAAL_X_INPUT)
-        bar("keraal all: streamfix debiased p95 / input", rel("keraal", "all", "debiased_p95_m"), KERAAL_X_INPUT)
+        bar(f"keraal all: {method} debiased mean / input", rel("keraal", "all", "debiased_mean_m"), KERAAL_X_INPUT)
+        bar(f"keraal all: {method} debiased p95 / input", rel("keraal", "all", "debiased_p95_m"), KERAAL_X_INPUT)
     for dataset in datasets:
-        s = _get(records, dataset, "streamfix", "all")
-        bar(f"{dataset} all: streamfix seam ratio", None if s is None else s["seam_ratio"], SEAM_MAX)
+        s = _get(records, dataset, method, "all")
+        bar(f"{dataset} all: {method} seam ratio", None if s is None else s["seam_ratio"], SEAM_MAX)
     return bars
 
 
@@ -183,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     for msg in skipped:
         print(f"warning: {msg}", file=sys.stderr)
     print_paired_table(records)
-    bars = check_bars(records)
+    bars = [b for m in ("streamfix", "streamfix_serve") if any(r["method"] == m for r in records)
+            for b in check_bars(records, m)]
     print()
     for b in bars:
         v = "-" if b["value"] is None else f"{b['value']:.3f}"

@@ -8,10 +8,12 @@ on at most 2 worker processes, pools the records per error kind and method
 ``benchmarks/results/sensor.json`` (pooled and per-take summaries, bars; every record
 with ``--records``) and ``sensor.md``.
 
-Bars (issue 8, "Sensor protocol" and "No seam"), for the ``streamfix`` method:
+Bars (issue 8, "Sensor protocol" and "No seam"), for the ``streamfix`` method (what
+``streamfix clean`` writes) and again for ``streamfix_serve`` (``serve``'s ``clean`` topic);
+each method's seam is measured at its own schedule's window hand-overs:
 
 * below the best baseline's mean joint error (all joint-frames) on every error kind and
-  on ``mix`` (baselines: every method but ``input`` and ``streamfix``; a baseline that
+  on ``mix`` (baselines: every method but ``input`` and ``streamfix*``; a baseline that
   leaves joint-frames missing is not eligible on that kind);
 * collateral damage (error on uncorrupted joint-frames) no larger than
   ``median_savgol``'s on every kind that has such frames;
@@ -50,7 +52,8 @@ from streamfix.evaluation.sensor import SCORED_KINDS, run_sensor, summarise  # n
 SWAP_MAX_RATIO = 0.3
 FREEZE_MAX_RATIO = 0.5
 SEAM_MAX_RATIO = 1.1
-NOT_BASELINES = ("input", "streamfix")
+NOT_BASELINES = ("input", "streamfix", "streamfix_serve")
+ENGINE_METHODS = ("streamfix", "streamfix_serve")  # what `clean` writes, what serve's clean topic publishes
 HAZARDS = ("flagged",)  # the input is right there: scored for damage, not against the baselines
 GAP_ONLY = ("linear", "spline")  # pass observed samples through: a baseline only where the input has gaps
 
@@ -73,12 +76,13 @@ def _mm(v) -> str:
     return "-" if v is None else f"{v * 1000:.1f}"
 
 
-def check_bars(summary: dict, seam_ratio: float | None) -> list[dict]:
-    """Every bar as {bar, kind, value, target, ok}."""
+def check_bars(summary: dict, seam_ratio: float | None, method: str = "streamfix") -> list[dict]:
+    """Every bar for ``method`` (``streamfix`` or ``streamfix_serve``) as {bar, kind, value, target, ok}."""
     bars = []
+    tag = "" if method == "streamfix" else f"{method}: "
     for kind in SCORED_KINDS:
         per = summary.get(kind, {})
-        sf = per.get("streamfix")
+        sf = per.get(method)
         if sf is None:
             continue
         has_gaps = per.get("input", {}).get("unfilled", 0.0) > 0
@@ -87,24 +91,24 @@ def check_bars(summary: dict, seam_ratio: float | None) -> list[dict]:
         ms = per.get("median_savgol")
         if kind in HAZARDS:
             if ms and ms["err_corrupted_m"] is not None and sf["err_corrupted_m"] is not None:
-                bars.append({"bar": "flagged joint-frames <= median_savgol's", "kind": kind,
+                bars.append({"bar": f"{tag}flagged joint-frames <= median_savgol's", "kind": kind,
                              "value": sf["err_corrupted_m"], "target": ms["err_corrupted_m"],
                              "ok": sf["err_corrupted_m"] <= ms["err_corrupted_m"]})
         elif base and sf["err_m"] is not None:
             best = min(base, key=base.get)
-            bars.append({"bar": f"streamfix < best baseline ({best}), all joint-frames", "kind": kind,
+            bars.append({"bar": f"{method} < best baseline ({best}), all joint-frames", "kind": kind,
                          "value": sf["err_m"], "target": base[best], "ok": sf["err_m"] < base[best]})
         if ms and ms["err_clean_m"] is not None and sf["err_clean_m"] is not None:
-            bars.append({"bar": "collateral damage <= median_savgol's", "kind": kind, "value": sf["err_clean_m"],
+            bars.append({"bar": f"{tag}collateral damage <= median_savgol's", "kind": kind, "value": sf["err_clean_m"],
                          "target": ms["err_clean_m"], "ok": sf["err_clean_m"] <= ms["err_clean_m"]})
         inp = per.get("input")
         for k, ratio in (("swap", SWAP_MAX_RATIO), ("freeze", FREEZE_MAX_RATIO)):
             if kind == k and inp and inp["err_corrupted_m"] and sf["err_corrupted_m"] is not None:
                 target = ratio * inp["err_corrupted_m"]
-                bars.append({"bar": f"corrupted joint-frames <= {ratio}x input", "kind": kind,
+                bars.append({"bar": f"{tag}corrupted joint-frames <= {ratio}x input", "kind": kind,
                              "value": sf["err_corrupted_m"], "target": target, "ok": sf["err_corrupted_m"] <= target})
     if seam_ratio is not None:
-        bars.append({"bar": f"seam ratio <= {SEAM_MAX_RATIO}", "kind": "all", "value": seam_ratio,
+        bars.append({"bar": f"{tag}seam ratio <= {SEAM_MAX_RATIO}", "kind": "all", "value": seam_ratio,
                      "target": SEAM_MAX_RATIO, "ok": seam_ratio <= SEAM_MAX_RATIO})
     return bars
 
@@ -156,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.perf_counter() - t0
     summary = summarise(records)
     seams = {m: v["seam_ratio"] for m, v in summarise([dict(r, kind="all") for r in records])["all"].items()}
-    bars = check_bars(summary, seams.get("streamfix"))
+    bars = [b for m in ENGINE_METHODS if m in METHODS for b in check_bars(summary, seams.get(m), m)]
     meta = {"takes": len(files), "seeds": args.seeds, "rate_hz": DEFAULT_RATE_HZ, "wall_s": wall,
             "files": [_shown(f) for f in files], "missing_methods": missing}
     print(format_table(records))

@@ -35,10 +35,11 @@ Lag: per take, the ``FAST_JOINTS`` joints of the region whose reference moves fa
 
 Seam: the streaming engine's window ``k`` ends at ``e_k = L + 1 + k H`` and contributes
 to output frames ``n`` with ``n < e_k <= n + L + 1`` (``streamfix.streaming.engine``), so
-a new window enters the overlap-add at frame ``e_k - L - 1 = k H`` with a large Hann
-weight (it leaves at ``e_k`` with weight ~0). The two frames around each entry,
-``k H - 1`` and ``k H`` (``k >= 1``), are the hand-over frames; ``H``, ``L`` come from
-``EngineConfig(rate_hz=...)`` at the take's rate.
+a new window enters the overlap-add at frame ``e_k - L - 1 = k H``. The two frames around
+each entry, ``k H - 1`` and ``k H`` (``k >= 1``), are the hand-over frames; ``H``, ``L``
+are those of the schedule the method ran at the take's rate
+(:func:`streamfix.evaluation.registry.engine_config`: the file schedule for ``streamfix``,
+``serve``'s for every other method).
 
 Methods come from :mod:`streamfix.evaluation.registry`; names it does not know are
 skipped with a warning (:data:`DEFAULT_METHODS` names the baselines users pick).
@@ -62,7 +63,8 @@ from . import registry
 __all__ = ["run_paired", "score_take", "aggregate", "body_region", "handover_frames", "print_paired_table",
            "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
 
-DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix")
+DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix",
+                   "streamfix_serve")
 REGIONS = ("all", "upper", "lower")
 MAX_LAG_FRAMES = 10
 FAST_JOINTS = 3
@@ -75,11 +77,10 @@ def body_region(joint_name: str) -> str:
     return "lower" if any(w in name for w in _LOWER_WORDS) else "upper"
 
 
-def handover_frames(n_frames: int, rate_hz: float) -> np.ndarray:
-    """``(T,)`` bool: frames ``k H - 1`` and ``k H`` (``k >= 1``) of the engine's default schedule."""
-    from ..streaming.engine import EngineConfig
-
-    hop = EngineConfig(rate_hz=rate_hz).hop
+def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serve") -> np.ndarray:
+    """``(T,)`` bool: frames ``k H - 1`` and ``k H`` (``k >= 1``) of the engine schedule
+    ``method`` ran (:func:`streamfix.evaluation.registry.engine_config`)."""
+    hop = registry.engine_config(method, rate_hz).hop
     n = np.arange(n_frames)
     return (n >= hop - 1) & ((n % hop == 0) | (n % hop == hop - 1))
 
@@ -109,7 +110,6 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
     T = ref.shape[0]
     has_ref = np.isfinite(ref).all(axis=2)  # (T, J)
     d2_ref = second_difference_norm(ref)
-    seam = handover_frames(T, take.sensor.rate_hz)
     bones = take.sensor.skeleton.bone_array
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # joints without a reference: NaN speed
@@ -124,6 +124,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
         deb = np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)
         slow = slow_error_norm(y, ref, take.sensor.rate_hz)
         d2 = second_difference_norm(y)
+        seam = handover_frames(T, take.sensor.rate_hz, name)
         for region, joints in regions.items():
             jm = joints[None, :]
             e_ok = has_ref & jm & np.isfinite(err)

@@ -5,10 +5,15 @@ A *method* maps a corrupted take to a cleaned one::
     method(positions (T,J,3) m NaN=missing, confidence (T,J), bones (B,2), rate_hz,
            skeleton=None) -> (T,J,3)
 
-``streamfix`` is **what users get**: the streaming engine's ``clean`` output (what
-``streamfix serve`` publishes on ``clean`` and ``streamfix clean`` writes), through
-:func:`streamfix.streaming.offline.clean_motion` with the default
-:class:`~streamfix.streaming.engine.EngineConfig`. ``streamfix_whole`` is the default
+``streamfix`` is **what users get** from a recording: the streaming engine's ``clean``
+output on the schedule ``streamfix clean`` runs for files
+(:meth:`~streamfix.streaming.engine.EngineConfig.for_files`, through
+:func:`streamfix.streaming.offline.clean_motion`). ``streamfix_serve`` is the same engine
+and window solver on ``serve``'s schedule (:class:`~streamfix.streaming.engine.EngineConfig`
+defaults: the ``clean`` topic a live consumer receives 0.5 s late). Both are reported:
+the file schedule takes each frame from windows that hold it near their middle, which the
+live topic's latency bound rules out (:func:`engine_config` says which schedule a method
+ran, for measures such as the seam). ``streamfix_whole`` is the default
 window pipeline (:func:`streamfix.core.pipeline.clean_window`) run once on the whole
 take, which no user command runs; it is kept to measure what windowing costs.
 ``yang``/``li``/``wang`` are Algorithm 1 and its predecessors via
@@ -43,6 +48,7 @@ __all__ = [
     "PROTOCOL_MODULES",
     "is_kinect_file",
     "layout_for",
+    "engine_config",
     "ONE_EURO_TUNED",
 ]
 
@@ -67,16 +73,29 @@ def layout_for(bones: np.ndarray, n_joints: int, skeleton: Skeleton | None = Non
     return Skeleton(f"eval_{n_joints}", names, tuple((int(a), int(b)) for a, b in np.asarray(bones).reshape(-1, 2)))
 
 
-def _streamfix(x, conf, bones, rate, skeleton=None):
-    """The engine's ``clean`` output (what ``serve`` publishes and ``clean`` writes)."""
-    from ..streaming.engine import EngineConfig
-    from ..streaming.offline import clean_motion
+def engine_config(method: str, rate_hz: float):
+    """The :class:`~streamfix.streaming.engine.EngineConfig` a method ran its windows on:
+    ``streamfix`` the file schedule, every other method (``streamfix_serve``, and methods
+    without windows, whose seams are measured where ``serve``'s would be) ``serve``'s."""
+    from ..streaming.config import schedule_config
 
-    skel = layout_for(bones, x.shape[1], skeleton)
-    times = np.arange(x.shape[0], dtype=np.float64) / float(rate)
-    motion = Motion(np.asarray(x, dtype=np.float64), np.asarray(conf, dtype=np.float64), times, float(rate), skel)
-    out, _ = clean_motion(motion, EngineConfig(rate_hz=float(rate)))
-    return out.positions
+    return schedule_config("file" if method == "streamfix" else "serve", rate_hz)
+
+
+def _engine_method(name: str) -> Method:
+    def run(x, conf, bones, rate, skeleton=None):
+        from ..streaming.offline import clean_motion
+
+        skel = layout_for(bones, x.shape[1], skeleton)
+        times = np.arange(x.shape[0], dtype=np.float64) / float(rate)
+        motion = Motion(np.asarray(x, dtype=np.float64), np.asarray(conf, dtype=np.float64), times, float(rate), skel)
+        out, _ = clean_motion(motion, engine_config(name, rate))
+        return out.positions
+
+    run.__name__ = name
+    run.__doc__ = ("The engine's clean output on the file schedule (what ``streamfix clean`` writes)."
+                   if name == "streamfix" else "The engine's clean output on serve's schedule (the clean topic).")
+    return run
 
 
 def _streamfix_whole(x, conf, bones, rate, skeleton=None):
@@ -143,7 +162,8 @@ def _interp(kind: str) -> Method:
 
 METHODS: dict[str, Method] = {
     "input": _input,
-    "streamfix": _streamfix,
+    "streamfix": _engine_method("streamfix"),
+    "streamfix_serve": _engine_method("streamfix_serve"),
     "streamfix_whole": _streamfix_whole,
     "yang": _solver("yang"),
     "li": _solver("li"),

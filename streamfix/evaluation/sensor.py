@@ -40,7 +40,7 @@ from ..core import metrics
 from ..motion import Motion
 from ..sim.sensor_errors import KINDS, MIX_KINDS, apply_sensor_errors
 from ..skeletons import KINECT_V2
-from .registry import METHODS, is_kinect_file, load_motion, run_method
+from .registry import METHODS, engine_config, is_kinect_file, load_motion, run_method
 
 __all__ = [
     "run_sensor",
@@ -56,7 +56,7 @@ __all__ = [
 ]
 
 DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth",
-                   "linear", "streamfix")
+                   "linear", "streamfix", "streamfix_serve")
 DEFAULT_RATE_HZ = 30.0
 N_SEEDS = 3
 _MIX = "mix"
@@ -81,11 +81,10 @@ def ground_truth(path: str | Path, rate_hz: float = DEFAULT_RATE_HZ) -> Motion:
     return motion
 
 
-def handover_frames(n_frames: int, rate_hz: float) -> np.ndarray:
-    """(T,) bool: the two frames around each window end ``L + 1 + k H`` of the default engine."""
-    from ..streaming.engine import EngineConfig
-
-    cfg = EngineConfig(rate_hz=rate_hz)
+def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serve") -> np.ndarray:
+    """(T,) bool: the two frames around each window end ``L + 1 + k H`` of the engine
+    schedule ``method`` ran (:func:`streamfix.evaluation.registry.engine_config`)."""
+    cfg = engine_config(method, rate_hz)
     ends = np.arange(cfg.lookahead + 1, n_frames, cfg.hop)
     seam = np.zeros(n_frames, dtype=bool)
     seam[ends - 1] = True
@@ -156,7 +155,7 @@ def run_sensor(paths, *, rate_hz=None, levels=None, seed=0, methods=None, kinds=
         T, J, _ = truth.shape
         if T < 3:
             raise ValueError(f"{path}: the sensor protocol needs at least 3 frames at {rate:g} Hz, got {T}")
-        seam = handover_frames(T, rate)
+        seams = {name: handover_frames(T, rate, name) for name in names}
         for kind in kinds:
             for s in range(int(seed), int(seed) + int(n_seeds)):
                 rng = _rng(s, kind, path)
@@ -181,7 +180,7 @@ def run_sensor(paths, *, rate_hz=None, levels=None, seed=0, methods=None, kinds=
                         "n_joints": J,
                         "n_corrupted": int(corrupted.sum()),
                         "n_clean": int((~corrupted).sum()),
-                        **_score(pred, truth, corrupted, seam, bones),
+                        **_score(pred, truth, corrupted, seams[name], bones),
                         "time_s": dt,
                     })
     return records
