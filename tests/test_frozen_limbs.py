@@ -133,6 +133,34 @@ def test_a_rigid_limb_beside_a_still_twin_is_a_person_holding_still():
     assert frozen_inferred(still, inferred, parents, limbs, RATE)[30:75, 1:4].all()  # without the twin test
 
 
+def test_a_twin_must_bend_clearly_not_just_above_the_rigid_threshold():
+    """A twin articulating between RIGID_M and TWIN_BENDS_M (a leg settling after a move)
+    does not make the other limb a guess: the decision would flip between overlapping
+    windows as they see more or less of the settling."""
+    from streamfix.core.frozen import RIGID_M, TWIN_BENDS_M, articulation
+
+    x, frozen, inferred, parents, limbs, mirror = _left_arm_frozen()
+    span = int(round(0.5 * RATE))
+
+    def twin_with(amplitude_m: float) -> np.ndarray:
+        # the right arm wobbles about its frame-29 pose: elbow about the root, wrist about the elbow
+        y = frozen.copy()
+        wave = amplitude_m * np.sin(2 * np.pi * 2.0 * np.arange(len(y)) / RATE)[:, None]
+        y[:, 4] = y[29, 4][None] + wave * np.array([1.0, 0.0, 0.0])
+        y[:, 5] = y[:, 4] + (y[29, 5] - y[29, 4])[None] + wave * np.array([0.0, 1.0, 0.0])
+        y[:, 6] = y[:, 5] + (y[29, 6] - y[29, 5])[None]
+        return y
+
+    wobble = twin_with(0.012)
+    med = np.median(articulation(wobble, parents, span)[30:75, 4:6], axis=0)
+    assert (RIGID_M < med).all() and (med < TWIN_BENDS_M).all(), med
+    assert not frozen_inferred(wobble, inferred, parents, limbs, RATE, mirror=mirror).any()
+    assert frozen_inferred(wobble, inferred, parents, limbs, RATE, mirror=mirror, twin_bends_m=RIGID_M)[30:75, 1:4].all()
+    swing = twin_with(0.08)
+    assert (np.median(articulation(swing, parents, span)[30:75, 4:6], axis=0) > TWIN_BENDS_M).all()
+    assert frozen_inferred(swing, inferred, parents, limbs, RATE, mirror=mirror)[30:75, 1:4].all()
+
+
 def test_a_run_without_a_measure_is_not_frozen_and_a_missing_twin_does_not_object():
     x, frozen, inferred, parents, limbs, mirror = _left_arm_frozen()
     lost_twin = frozen.copy()
@@ -235,7 +263,10 @@ def test_legs_inferred_for_long_keep_the_sensors_guess(shared_data):
     """seated_joints.csv: the knees and ankles are tracked for the first second or so, then
     inferred to the end (11 s), barely bending (a seated person's legs under a desk). Both
     legs are still, so neither is the sensor's guess of a moving limb: the release leaves
-    them to the window pipeline (the output is the same as without the release)."""
+    them to the window pipeline (the output is the same as without the release). In the
+    first seconds one leg settles after a move, articulating just above RIGID_M: with the
+    twin test at RIGID_M the release flipped between windows there and swung the right
+    knee 50 cm (TWIN_BENDS_M)."""
     from streamfix.io import read_motion
 
     m = read_motion(shared_data / "kinect_v2" / "seated_joints.csv")

@@ -27,13 +27,22 @@ from scipy.ndimage import uniform_filter1d
 
 from .interpolate import missing_run_lengths
 
-__all__ = ["articulation", "frozen_inferred", "RIGID_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S", "MIN_DECIDING_BONE_M"]
+__all__ = ["articulation", "frozen_inferred", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S",
+           "MIN_DECIDING_BONE_M"]
 
 RIGID_M = 0.004
 """Articulation (m, RMS residual of the straight-line fit, summed over axes) below which
 an inferred joint counts as a frozen guess: above the 0.7-2.4 mm of a real Kinect v2's
 inferred legs, below the 10 mm and more (5th percentile) of the sensor protocol's limbs
 flagged inferred while moving, sampled with its noise."""
+
+TWIN_BENDS_M = 2 * RIGID_M
+"""Articulation (m, median over the run's frames) the left/right twin must reach for a
+rigid inferred run to count as a guess: a clear margin above ``RIGID_M``. At a twin just
+above ``RIGID_M`` (a seated leg settling after a move, ``seated_joints.csv``) the decision
+flipped between overlapping windows, which saw different parts of the settling, and the
+released knee swung 50 cm between them; the sensor protocol's moving limbs articulate
+10 mm and more (5th percentile)."""
 
 ARTICULATION_SPAN_S = 0.5
 """Span (s) of the straight-line fit behind :func:`articulation`."""
@@ -114,6 +123,7 @@ def frozen_inferred(
     min_run_s: float = MIN_FROZEN_S,
     min_bone_m: float = MIN_DECIDING_BONE_M,
     mirror: np.ndarray | None = None,
+    twin_bends_m: float = TWIN_BENDS_M,
 ) -> np.ndarray:
     """``(T, J)`` bool: inferred samples of limb joints that belong to a frozen guess.
 
@@ -131,7 +141,7 @@ def frozen_inferred(
     stopped bending on a tracked wrist is a few centimetres off at most.
 
     ``mirror`` ``(J,)`` (each joint's left/right twin; None: no such test): a run is
-    frozen only if the twin bends (articulation at least ``rigid_m`` over the same
+    frozen only if the twin bends (articulation at least ``twin_bends_m`` over the same
     frames, median). A limb still beside a still twin is a person holding still (a
     seated user's legs); beside a moving twin, the sensor's guess. A twin without a
     measure (missing) does not stop the decision.
@@ -169,7 +179,7 @@ def frozen_inferred(
             # the same frames of the mirror joint: a limb held still beside a still twin is a
             # person holding still; beside a moving twin, the sensor's guess
             twin_med = _run_medians(art[:, np.asarray(mirror, dtype=np.intp)].T, label, n_runs)
-            frozen_run[1:] &= ~(twin_med < rigid_m)  # NaN (twin not measured): no objection
+            frozen_run[1:] &= ~(twin_med < twin_bends_m)  # NaN (twin not measured): no objection
         out |= frozen_run[label].T
     followers = np.flatnonzero(limbs & ~deciding & (par >= 0))
     for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)

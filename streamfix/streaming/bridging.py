@@ -74,8 +74,8 @@ second or more while its left/right twin bends is the sensor's frozen or driftin
 a tracked sample of the same joint (``streamfix.core.inferred.TRACKED_NEAR_S``) these
 samples become missing before anything else runs: the long-gap bridge and the window
 pipeline fill them, and they are flagged ``recovered``. The guess stays farther from a
-tracked sample, beside a twin that is still too (a seated user's legs under a desk in
-``seated_joints.csv``) and in a body's first ``GUESS_HISTORY_S``. The hazard is a limb
+tracked sample, and beside a twin that does not clearly bend (a seated user's legs under
+a desk in ``seated_joints.csv``, one of them settling after a move). The hazard is a limb
 the person really holds still while the other one moves, which looks the same: it is
 replaced by the fill as well (the sensor protocol's ``flagged`` kind scores that cost;
 ``benchmarks/results/sensor.md`` has the figures).
@@ -144,11 +144,12 @@ applies to: an arm moves on its own, which the rest of the body cannot tell the 
 EXCURSION_HORIZON_S = 1.0
 """Seconds of the joint's observed samples next to a gap that set its range of motion."""
 GUESS_HISTORY_S = 1.0
-"""Seconds of clean history a body needs before a fill may take the place of the sensor's
-inferred samples (frozen limbs released, inferred limbs checked against the prior): at a
-stream's start the fill comes from the prior alone, which differs from window to window
-by more than the hand-over crossfade hides (on ``seated_joints.csv`` releases from the
-first frame on raised the seam ratio from 1.05 to 1.13)."""
+"""Seconds of clean history a body needs before the prior's fill may take the place of the
+sensor's inferred samples it is checked against (``verify_inferred``): at a stream's start
+the fill comes from the prior alone, which differs from window to window by more than the
+hand-over crossfade hides. (Frozen limbs are released from the first frame: the glitch
+this gate once hid on ``seated_joints.csv`` was a release decision that flipped between
+windows, which the twin's margin, ``streamfix.core.frozen.TWIN_BENDS_M``, now prevents.)"""
 VERIFY_EXCURSION_GAIN: float | None = 1.0
 """Excursion limit of the fill the inferred samples are checked against: looser than the
 gap fill's (its hold baseline is the limb's last tracked pose, which is what a frozen
@@ -503,7 +504,7 @@ class BridgingWindowSolver:
         from ..limbs import limb_groups, mirror_index
 
         inferred = (conf > 0) & (conf < 1.0)
-        if not inferred.any() or history is None or len(history) < GUESS_HISTORY_S * rate_hz:
+        if not inferred.any():
             return np.zeros(conf.shape, dtype=bool)
         layout = self._limb_joints.get(skeleton.name)
         if layout is None:
