@@ -197,7 +197,7 @@ def main() -> int:
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "streaming.json"),
                     help="where to write the results (default benchmarks/results/streaming.json; '' = nowhere)")
     ap.add_argument("--realtime-seconds", type=float, default=10.0,
-                    help="length of the real-time threaded run (informational)")
+                    help="length of the real-time threaded run (informational; 0 = skip it)")
     ap.add_argument("--profile", type=int, default=0, metavar="N",
                     help="also print the N functions with the most own time in one synchronous run of the "
                          "default engine (cProfile, after the timed runs)")
@@ -229,7 +229,8 @@ def main() -> int:
             "elapsed": best["elapsed"],
         }
     live = live_latency(bodies, min(n_frames, 300), cfg)
-    rt = run_realtime(frames, solvers["streamfix (default)"], cfg, min(args.seconds, args.realtime_seconds))
+    rt = (run_realtime(frames, solvers["streamfix (default)"], cfg, min(args.seconds, args.realtime_seconds))
+          if args.realtime_seconds > 0 else None)
 
     print(f"streaming benchmark: {args.bodies} bodies x {n_frames} frames at {RATE:g} Hz "
           f"(real Kinect v2 recordings), window {cfg.window}, hop {cfg.hop}, lookahead {cfg.lookahead} "
@@ -252,10 +253,11 @@ def main() -> int:
           f"wall p50 {live['wall_p50'] * 1e3:.3f} ms, p99 {live['wall_p99'] * 1e3:.3f} ms (wall includes preemption)")
     print(f"clean end-to-end latency: lookahead {cfg.latency_s * 1000:.0f} ms + window compute p99 "
           f"{d['clean_p99'] * 1e3:.0f} ms")
-    print(f"real time, threaded ({args.bodies} bodies at 30 Hz for {rt['frames'] / RATE:.0f} s): push() wall "
-          f"p50 {rt['push_p50'] * 1e3:.2f} ms, p99 {rt['push_p99'] * 1e3:.2f} ms for all bodies; "
-          f"{rt['behind']} frames behind on clean at the end (lookahead {cfg.lookahead}), degrade level "
-          f"{rt['level']}, {rt['events']} degrade events, {rt['skipped']} windows skipped/abandoned")
+    if rt is not None:
+        print(f"real time, threaded ({args.bodies} bodies at 30 Hz for {rt['frames'] / RATE:.0f} s): push() wall "
+              f"p50 {rt['push_p50'] * 1e3:.2f} ms, p99 {rt['push_p99'] * 1e3:.2f} ms for all bodies; "
+              f"{rt['behind']} frames behind on clean at the end (lookahead {cfg.lookahead}), degrade level "
+              f"{rt['level']}, {rt['events']} degrade events, {rt['skipped']} windows skipped/abandoned")
 
     checks = [
         ("live compute p99 < 2 ms (per body-frame, CPU time)", live["cpu_p99"] < TARGET_LIVE_P99_S),
@@ -284,7 +286,8 @@ def main() -> int:
             "run": {"commit": commit, "bodies": args.bodies, "frames": n_frames, "rate_hz": RATE,
                     "window": cfg.window, "hop": cfg.hop, "lookahead": cfg.lookahead, "repeats": args.repeats},
             "engines": rows, "live": {k: float(v) for k, v in live.items()},
-            "realtime": {k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in rt.items()},
+            "realtime": None if rt is None else {
+                k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in rt.items()},
             "bars": [{"bar": text, "ok": bool(ok)} for text, ok in checks],
         }, indent=1, default=float))
         print(f"wrote {args.json}")
