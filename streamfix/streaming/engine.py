@@ -3,7 +3,8 @@
 No sockets here: :class:`StreamEngine` consumes :class:`~streamfix.frames.SkeletonFrame`
 objects and returns ``(kind, frame)`` pairs, ``kind`` in ``{'live', 'clean'}``.
 ``streamfix serve`` wires it to ZeroMQ; ``streamfix clean`` runs recorded files through
-the very same engine in synchronous mode, so the two agree.
+the very same engine in synchronous mode, on a schedule made for files
+(:meth:`EngineConfig.for_files`; with ``serve``'s schedule the two agree exactly).
 
 Windows, hop, lookahead and overlap-add
 ---------------------------------------

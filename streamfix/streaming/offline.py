@@ -2,8 +2,10 @@
 
 :func:`clean_motion` feeds the motion frame by frame into a synchronous
 :class:`~streamfix.streaming.engine.StreamEngine` (one body, id 0) and collects its
-``clean`` output, so a file cleaned offline equals what ``streamfix serve`` emits on
-``clean`` for the same frames. The result is a pure function of the input. When only
+``clean`` output: with ``serve``'s schedule (the :class:`EngineConfig` defaults) a file
+cleaned offline equals what ``streamfix serve`` emits on ``clean`` for the same frames;
+``streamfix clean`` passes the file schedule (:meth:`EngineConfig.for_files`). The result
+is a pure function of the input. When only
 ``clean`` is collected the engine runs with ``live_output=False``: the live path's
 per-frame work is skipped (its output would be thrown away; ``clean`` is the same).
 """
