@@ -121,6 +121,10 @@ def test_file_schedule_solves_half_the_windows_and_keeps_its_settings_consistent
         schedule_config("batch", 30.0)
     with pytest.raises(ValueError, match="handover_s"):
         EngineConfig(rate_hz=30.0, handover_s=0.0)
+    with pytest.raises(ValueError, match="window must be >= 4"):
+        EngineConfig.for_files(30.0, window=0)  # a bad value is refused, not replaced by the default
+    with pytest.raises(ValueError, match="hop must be in"):
+        EngineConfig.for_files(30.0, hop=0)
     _, on_files = clean_motion(kinect, cfg)
     _, on_serve = clean_motion(kinect, EngineConfig(rate_hz=kinect.rate_hz))
     assert on_files["windows_solved"] * 2 <= on_serve["windows_solved"] + 2

@@ -97,14 +97,18 @@ class EngineConfig:
         rate = float(rate_hz)
         if not (np.isfinite(rate) and rate > 0):
             raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
-        window = settings.pop("window", None) or max(1, int(round(DEFAULT_WINDOW_S * rate)))
+        window = settings.pop("window", None)
+        if window is None:
+            window = max(1, int(round(DEFAULT_WINDOW_S * rate)))
         lookahead = settings.pop("lookahead", None)
         lookahead_s = settings.pop("lookahead_s", None)
         if lookahead_s is not None:
             lookahead = int(round(float(lookahead_s) * rate))
         elif lookahead is None:
             lookahead = min(max(0, int(round(FILE_LOOKAHEAD_S * rate))), window - 1)
-        hop = settings.pop("hop", None) or min(max(1, int(round(FILE_HOP_S * rate))), lookahead + 1)
+        hop = settings.pop("hop", None)
+        if hop is None:
+            hop = min(max(1, int(round(FILE_HOP_S * rate))), lookahead + 1)
         base: dict[str, Any] = {"window": window, "hop": hop, "lookahead": lookahead, "handover_s": FILE_HANDOVER_S}
         base.update(settings)
         return cls(rate_hz=rate, **base)
