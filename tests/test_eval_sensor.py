@@ -82,11 +82,17 @@ def test_cli_table_and_bad_input(shared_data, project_root):
     assert "Ges01_wavehand.csv" in bad.stderr and "ground truth" in bad.stderr
 
 
-def test_handover_frames_follow_the_engine_schedule():
-    cfg = EngineConfig(rate_hz=30.0)
-    seam = handover_frames(70, 30.0)
-    ends = np.arange(cfg.lookahead + 1, 70, cfg.hop)
-    assert np.array_equal(np.flatnonzero(seam), np.sort(np.concatenate([ends - 1, ends])))
+def test_handover_frames_follow_each_methods_schedule():
+    """Two frames per hop, one hop apart, on serve's schedule for every method but
+    ``streamfix`` (the file schedule); paired and sensor measure the same frames."""
+    from streamfix.evaluation import paired
+
+    serve, files = EngineConfig(rate_hz=30.0), EngineConfig.for_files(30.0)
+    for method, cfg in (("input", serve), ("streamfix_serve", serve), ("streamfix", files)):
+        seam = handover_frames(300, 30.0, method)
+        pairs = np.flatnonzero(seam)[1::2]
+        assert len(pairs) >= 300 // cfg.hop - 3 and set(np.diff(pairs)) == {cfg.hop}, method
+        assert np.array_equal(seam, paired.handover_frames(300, 30.0, method))
 
 
 def test_seam_jitter_sees_a_kink_at_every_hand_over():

@@ -33,13 +33,10 @@ all joint-frames, bone CV is the frame-weighted mean of each take's CV.
 Lag: per take, the ``FAST_JOINTS`` joints of the region whose reference moves fastest;
 :func:`streamfix.core.reference_metrics.velocity_xcorr` over +-``MAX_LAG_FRAMES``.
 
-Seam: the streaming engine's window ``k`` ends at ``e_k = L + 1 + k H`` and contributes
-to output frames ``n`` with ``n < e_k <= n + L + 1`` (``streamfix.streaming.engine``), so
-a new window enters the overlap-add at frame ``e_k - L - 1 = k H``. The two frames around
-each entry, ``k H - 1`` and ``k H`` (``k >= 1``), are the hand-over frames; ``H``, ``L``
-are those of the schedule the method ran at the take's rate
-(:func:`streamfix.evaluation.registry.engine_config`: the file schedule for ``streamfix``,
-``serve``'s for every other method).
+Seam: the two frames around each window hand-over, where the engine's blend passes a
+frame to the newer window (:func:`streamfix.evaluation.registry.handover_frames`), on the
+schedule the method ran at the take's rate (the file schedule for ``streamfix``, ``serve``'s
+for every other method).
 
 Methods come from :mod:`streamfix.evaluation.registry`; names it does not know are
 skipped with a warning (:data:`DEFAULT_METHODS` names the baselines users pick).
@@ -59,6 +56,7 @@ from ..core import metrics
 from ..core.reference_metrics import remove_mean_offset, second_difference_norm, slow_error_norm, velocity_xcorr
 from ..io.paired import PairedTake, TakeRef, default_paired_dir, find_takes, load_take
 from . import registry
+from .registry import handover_frames
 
 __all__ = ["run_paired", "score_take", "aggregate", "body_region", "handover_frames", "print_paired_table",
            "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
@@ -75,14 +73,6 @@ def body_region(joint_name: str) -> str:
     """``'lower'`` for the pelvis and legs (hip, knee, ankle, foot, waist, ...), else ``'upper'``."""
     name = joint_name.lower()
     return "lower" if any(w in name for w in _LOWER_WORDS) else "upper"
-
-
-def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serve") -> np.ndarray:
-    """``(T,)`` bool: frames ``k H - 1`` and ``k H`` (``k >= 1``) of the engine schedule
-    ``method`` ran (:func:`streamfix.evaluation.registry.engine_config`)."""
-    hop = registry.engine_config(method, rate_hz).hop
-    n = np.arange(n_frames)
-    return (n >= hop - 1) & ((n % hop == 0) | (n % hop == hop - 1))
 
 
 def _run_method(name: str, take: PairedTake) -> np.ndarray:

@@ -49,6 +49,7 @@ __all__ = [
     "is_kinect_file",
     "layout_for",
     "engine_config",
+    "handover_frames",
     "ONE_EURO_TUNED",
 ]
 
@@ -80,6 +81,17 @@ def engine_config(method: str, rate_hz: float):
     from ..streaming.config import schedule_config
 
     return schedule_config("file" if method == "streamfix" else "serve", rate_hz)
+
+
+def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serve") -> np.ndarray:
+    """``(T,)`` bool: the two frames around each window hand-over of the schedule ``method``
+    ran (:func:`engine_config`), where the blend passes a frame to the newer window
+    (:func:`streamfix.streaming.blending.handover_frames`): the frames a seam would show on."""
+    from ..streaming.blending import crossfade_frames
+    from ..streaming.blending import handover_frames as blend_handovers
+
+    cfg = engine_config(method, rate_hz)
+    return blend_handovers(n_frames, cfg.lookahead, cfg.hop, crossfade_frames(cfg.handover_s, cfg.rate_hz))
 
 
 def _engine_method(name: str) -> Method:

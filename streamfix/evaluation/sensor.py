@@ -20,9 +20,10 @@ kinds at their estimated rates) and each of ``n_seeds`` seeds (``seed``, ``seed 
 right (in ``mix``, those with noise only; None for ``noise`` alone, which touches all).
 An error is None where the method left any of its joint-frames NaN (``input`` on
 ``dropout``): a partial mean would not compare; ``unfilled`` says how many it left. The seam
-frames are the two around each end ``L + 1 + k H`` of the streaming engine's windows
-(:class:`~streamfix.streaming.engine.EngineConfig` at ``rate_hz``: hop ``H``, lookahead
-``L``); every method is scored on them, so the baselines show what no seam looks like.
+frames are the two around each window hand-over of the schedule the method ran
+(:func:`streamfix.evaluation.registry.handover_frames`: where the engine's blend passes a
+frame to the newer window; ``serve``'s schedule for methods without windows, so the
+baselines show what no seam looks like).
 :func:`summarise` pools records over files and seeds (joint-frame weighted).
 """
 from __future__ import annotations
@@ -40,7 +41,7 @@ from ..core import metrics
 from ..motion import Motion
 from ..sim.sensor_errors import KINDS, MIX_KINDS, apply_sensor_errors
 from ..skeletons import KINECT_V2
-from .registry import METHODS, engine_config, is_kinect_file, load_motion, run_method
+from .registry import METHODS, handover_frames, is_kinect_file, load_motion, run_method
 
 __all__ = [
     "run_sensor",
@@ -79,17 +80,6 @@ def ground_truth(path: str | Path, rate_hz: float = DEFAULT_RATE_HZ) -> Motion:
             f"{int((~motion.observed).sum())} of {motion.observed.size} joint-frames are missing"
         )
     return motion
-
-
-def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serve") -> np.ndarray:
-    """(T,) bool: the two frames around each window end ``L + 1 + k H`` of the engine
-    schedule ``method`` ran (:func:`streamfix.evaluation.registry.engine_config`)."""
-    cfg = engine_config(method, rate_hz)
-    ends = np.arange(cfg.lookahead + 1, n_frames, cfg.hop)
-    seam = np.zeros(n_frames, dtype=bool)
-    seam[ends - 1] = True
-    seam[ends] = True
-    return seam
 
 
 def _rng(seed: int, kind: str, path: str | Path) -> np.random.Generator:

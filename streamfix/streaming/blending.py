@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HANDOVER_S", "handover_weights"]
+__all__ = ["HANDOVER_S", "crossfade_frames", "handover_frames", "handover_weights"]
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
 
@@ -41,3 +41,36 @@ def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: in
     rise = smoothstep((d - 0.5 - (K - F)) / F)
     fall = smoothstep((lookahead + 1.5 - d) / F)
     return 1e-3 + np.minimum(rise, fall)
+
+
+def crossfade_frames(handover_s: float, rate_hz: float) -> int:
+    """The crossfade ``handover_s`` (s) in frames at ``rate_hz`` (Hz), at least 1."""
+    return max(1, int(round(float(handover_s) * float(rate_hz))))
+
+
+def handover_frames(n_frames: int, lookahead: int, hop: int, crossfade: int) -> np.ndarray:
+    """``(T,)`` bool: the two frames around each window hand-over of the engine's blend.
+
+    Windows end at ``e_k = L + 1 + k H`` (the engine's schedule for a body's timeline) and
+    frame ``n`` is blended from those with ``1 <= e - n <= L + 1`` by
+    :func:`handover_weights`; the hand-over is the first frame whose largest weight belongs
+    to a newer window than its predecessor's. That frame and the one before it are marked:
+    where a crossfade that does not hide the change between two windows' solutions shows
+    as a kink.
+    """
+    T = int(n_frames)
+    out = np.zeros(max(T, 0), dtype=bool)
+    L, H = int(lookahead), int(hop)
+    if T < 2:
+        return out
+    ends = np.arange(L + 1, T + L + 2, H)  # every window that blends into a frame < T
+    d = ends[None, :] - np.arange(T)[:, None]  # (T, K)
+    valid = (d >= 1) & (d <= L + 1)
+    w = np.where(valid, handover_weights(np.clip(d, 1, L + 1), L, H, crossfade), -np.inf)
+    has = valid.any(axis=1)
+    dominant = np.where(has, np.argmax(w, axis=1), -1)
+    switch = np.flatnonzero((dominant[1:] > dominant[:-1]) & has[1:] & has[:-1]) + 1
+    out[switch] = True
+    out[switch - 1] = True
+    return out
+

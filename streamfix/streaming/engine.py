@@ -119,7 +119,7 @@ import numpy as np
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
-from .blending import HANDOVER_S, handover_weights
+from .blending import HANDOVER_S, crossfade_frames, handover_weights
 from .bone_lengths import LengthSources, record_raw_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,
@@ -731,7 +731,7 @@ class StreamEngine:
         if lo >= job.end:
             return
         T = job.end - job.start
-        crossfade = max(1, int(round(self.cfg.handover_s * self.cfg.rate_hz)))
+        crossfade = crossfade_frames(self.cfg.handover_s, self.cfg.rate_hz)
         w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, self.hop, crossfade)
         x = job.result_pos[lo - job.start:]
         r = job.result_rec[lo - job.start:].astype(np.float64)
