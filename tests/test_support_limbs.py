@@ -160,36 +160,24 @@ def test_engine_plants_folded_legs_and_flags_them():
     assert out.recovered[60:100, ankles].all()  # replaced values are flagged recovered
 
 
-def test_no_seam_at_window_handovers(shared_data, monkeypatch):
-    """Mean second difference of the clean output on the frames next to a window hand-over
-    is within 1.1x of that on the other frames (issue 8), on the longest real Kinect take."""
+def test_no_seam_at_window_handovers(shared_data):
+    """Mean second difference of serve's clean output on the two frames around each window
+    hand-over (where the blend passes a frame to the newer window,
+    ``streamfix.streaming.blending.handover_frames``) is within 1.1x of that on the other
+    frames (issue 8), on the longest real Kinect take (measured 1.075; its input 0.72)."""
+    from streamfix.core.metrics import seam_jitter
     from streamfix.io.kinect_csv import read_kinect_csv
-    from streamfix.streaming import engine as eng
+    from streamfix.streaming.blending import crossfade_frames, handover_frames
+    from streamfix.streaming.engine import EngineConfig
     from streamfix.streaming.offline import clean_motion
 
     motion = read_kinect_csv(shared_data / "kinect_v2" / "seated_joints.csv")
-    ends: list[int] = []
-    run_job = eng.StreamEngine._run_job
-
-    def recording(self, job):
-        ends.append(job.end)
-        return run_job(self, job)
-
-    monkeypatch.setattr(eng.StreamEngine, "_run_job", recording)
-    cfg = eng.EngineConfig(rate_hz=motion.rate_hz)
-    out, _ = clean_motion(motion, cfg)
-    assert len(ends) > 30
-
-    def ratio(y):
-        d2 = np.nanmean(np.linalg.norm(y[2:] - 2 * y[1:-1] + y[:-2], axis=2), axis=1)  # frame t = index + 1
-        near = np.zeros(len(y), dtype=bool)
-        for e in ends:  # window e first contributes to frame e - L - 1: a hand-over between it and the one before
-            n = e - cfg.lookahead - 1
-            near[max(n - 1, 0):n + 1] = True
-        t = np.arange(1, len(y) - 1)
-        return d2[near[t]].mean() / d2[~near[t]].mean()
-
-    assert ratio(out.positions) < 1.1
+    cfg = EngineConfig(rate_hz=motion.rate_hz)
+    out, met = clean_motion(motion, cfg)
+    assert met["windows_solved"] > 30
+    seam = handover_frames(motion.n_frames, cfg.lookahead, cfg.hop, crossfade_frames(cfg.handover_s, cfg.rate_hz))
+    on, off = seam_jitter(out.positions, seam)
+    assert on / off < 1.1
 
 
 def test_plant_window_on_a_layout_without_shoulders():
