@@ -47,6 +47,7 @@ PAIRED = (ROOT / ".." / "shared" / "data" / "paired").resolve()
 
 from streamfix.cli.evaluate import _clean  # noqa: E402
 from streamfix.evaluation.paired import DEFAULT_METHODS, print_paired_table, run_paired  # noqa: E402
+from streamfix.evaluation.registry import ENGINE_SCHEDULES  # noqa: E402
 
 UIPRMD_MEAN_X_INPUT = 0.9
 UIPRMD_P95_X_INPUT = 0.85
@@ -186,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     for msg in skipped:
         print(f"warning: {msg}", file=sys.stderr)
     print_paired_table(records)
-    bars = [b for m in ("streamfix", "streamfix_serve") if any(r["method"] == m for r in records)
+    bars = [b for m in ENGINE_SCHEDULES if any(r["method"] == m for r in records)
             for b in check_bars(records, m)]
     print()
     for b in bars:

@@ -47,13 +47,13 @@ sys.path.insert(0, str(ROOT))
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 RESULTS = ROOT / "benchmarks" / "results"
 
+from streamfix.evaluation.registry import ENGINE_SCHEDULES  # noqa: E402
 from streamfix.evaluation.sensor import SCORED_KINDS, run_sensor, summarise  # noqa: E402
 
 SWAP_MAX_RATIO = 0.3
 FREEZE_MAX_RATIO = 0.5
 SEAM_MAX_RATIO = 1.1
-NOT_BASELINES = ("input", "streamfix", "streamfix_serve")
-ENGINE_METHODS = ("streamfix", "streamfix_serve")  # what `clean` writes, what serve's clean topic publishes
+NOT_BASELINES = ("input", *ENGINE_SCHEDULES)  # the engine: what `clean` writes, what serve's clean topic publishes
 HAZARDS = ("flagged",)  # the input is right there: scored for damage, not against the baselines
 GAP_ONLY = ("linear", "spline")  # pass observed samples through: a baseline only where the input has gaps
 
@@ -160,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.perf_counter() - t0
     summary = summarise(records)
     seams = {m: v["seam_ratio"] for m, v in summarise([dict(r, kind="all") for r in records])["all"].items()}
-    bars = [b for m in ENGINE_METHODS if m in METHODS for b in check_bars(summary, seams.get(m), m)]
+    bars = [b for m in ENGINE_SCHEDULES if m in METHODS for b in check_bars(summary, seams.get(m), m)]
     meta = {"takes": len(files), "seeds": args.seeds, "rate_hz": DEFAULT_RATE_HZ, "wall_s": wall,
             "files": [_shown(f) for f in files], "missing_methods": missing}
     print(format_table(records))

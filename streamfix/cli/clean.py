@@ -149,9 +149,7 @@ def run(args: argparse.Namespace) -> int:
         lengths = None
         if args.skeleton_lengths is not None:
             lengths = _parse_lengths(args.skeleton_lengths, motion.skeleton.n_bones)
-        from ..service.engines import parse_lookahead  # one --lookahead syntax for serve and clean
-
-        seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
+        seconds, frames = _lookahead(args)
         config = schedule_config(args.schedule, motion.rate_hz, window=args.window, hop=args.hop, lookahead=frames,
                                  lookahead_s=seconds, bone_lengths=lengths)
     except ValueError as exc:
@@ -200,6 +198,14 @@ def _summary(path, source, cleaned, metrics: dict, config, notes: list[str], gap
     )
 
 
+def _lookahead(args: argparse.Namespace) -> tuple[float | None, int | None]:
+    """``--lookahead`` as (seconds, frames), one of them None (both when not given); the
+    syntax of serve's option. Raises ValueError naming what is wrong."""
+    from ..service.engines import parse_lookahead
+
+    return (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
+
+
 def _run_archive(args: argparse.Namespace) -> int:
     """``streamfix clean DIR|'GLOB' OUT_DIR``: every recording, progress on stderr, a JSON summary; 1 if any failed."""
     from ..archive import (ArchiveOptions, SUMMARY_NAME, carry_over, clean_archive, find_recordings, plan_outputs,
@@ -231,10 +237,8 @@ def _run_archive(args: argparse.Namespace) -> int:
 
     if not apply_prior_option("clean", args.prior):  # checked here once, before any worker loads it
         return 2
-    from ..service.engines import parse_lookahead
-
     try:
-        seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
+        seconds, frames = _lookahead(args)
     except ValueError as exc:
         return fail(str(exc))
     options = ArchiveOptions(

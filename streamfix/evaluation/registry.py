@@ -74,13 +74,17 @@ def layout_for(bones: np.ndarray, n_joints: int, skeleton: Skeleton | None = Non
     return Skeleton(f"eval_{n_joints}", names, tuple((int(a), int(b)) for a, b in np.asarray(bones).reshape(-1, 2)))
 
 
+ENGINE_SCHEDULES = {"streamfix": "file", "streamfix_serve": "serve"}
+"""The engine methods and the schedule each runs (:func:`streamfix.streaming.config.schedule_config`)."""
+
+
 def engine_config(method: str, rate_hz: float):
-    """The :class:`~streamfix.streaming.engine.EngineConfig` a method ran its windows on:
-    ``streamfix`` the file schedule, every other method (``streamfix_serve``, and methods
-    without windows, whose seams are measured where ``serve``'s would be) ``serve``'s."""
+    """The :class:`~streamfix.streaming.engine.EngineConfig` a method ran its windows on
+    (:data:`ENGINE_SCHEDULES`); methods without windows get ``serve``'s, so their seams are
+    measured where ``serve``'s would be."""
     from ..streaming.config import schedule_config
 
-    return schedule_config("file" if method == "streamfix" else "serve", rate_hz)
+    return schedule_config(ENGINE_SCHEDULES.get(method, "serve"), rate_hz)
 
 
 def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serve") -> np.ndarray:
@@ -105,8 +109,7 @@ def _engine_method(name: str) -> Method:
         return out.positions
 
     run.__name__ = name
-    run.__doc__ = ("The engine's clean output on the file schedule (what ``streamfix clean`` writes)."
-                   if name == "streamfix" else "The engine's clean output on serve's schedule (the clean topic).")
+    run.__doc__ = f"The engine's clean output on the {ENGINE_SCHEDULES[name]} schedule."
     return run
 
 
@@ -174,8 +177,7 @@ def _interp(kind: str) -> Method:
 
 METHODS: dict[str, Method] = {
     "input": _input,
-    "streamfix": _engine_method("streamfix"),
-    "streamfix_serve": _engine_method("streamfix_serve"),
+    **{name: _engine_method(name) for name in ENGINE_SCHEDULES},
     "streamfix_whole": _streamfix_whole,
     "yang": _solver("yang"),
     "li": _solver("li"),

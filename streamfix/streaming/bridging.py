@@ -143,13 +143,11 @@ PRIOR_LIMITED_LIMBS = ("left_arm", "right_arm")
 applies to: an arm moves on its own, which the rest of the body cannot tell the prior."""
 EXCURSION_HORIZON_S = 1.0
 """Seconds of the joint's observed samples next to a gap that set its range of motion."""
-GUESS_HISTORY_S = 1.0
+VERIFY_HISTORY_S = 1.0
 """Seconds of clean history a body needs before the prior's fill may take the place of the
 sensor's inferred samples it is checked against (``verify_inferred``): at a stream's start
 the fill comes from the prior alone, which differs from window to window by more than the
-hand-over crossfade hides. (Frozen limbs are released from the first frame: the glitch
-this gate once hid on ``seated_joints.csv`` was a release decision that flipped between
-windows, which the twin's margin, ``streamfix.core.frozen.TWIN_BENDS_M``, now prevents.)"""
+hand-over crossfade hides."""
 VERIFY_EXCURSION_GAIN: float | None = 1.0
 """Excursion limit of the fill the inferred samples are checked against: looser than the
 gap fill's (its hold baseline is the limb's last tracked pose, which is what a frozen
@@ -455,7 +453,7 @@ class BridgingWindowSolver:
         if self.release_frozen and skeleton is not None:
             # inferred limbs that stopped bending (the sensor's frozen or drifting guess,
             # core/frozen.py) become missing: the bridge and the solver fill them
-            frozen = self._frozen(x, conf, bones, rate_hz, skeleton, history)
+            frozen = self._frozen(x, conf, bones, rate_hz, skeleton)
             if frozen.any():
                 x = np.where(frozen[..., None], np.nan, x)
                 conf = np.where(frozen, 0.0, conf)
@@ -490,7 +488,7 @@ class BridgingWindowSolver:
             res.positions = smooth_planted(res.positions, plant_weight, rate_hz, SupportConfig().planted_smooth_s)
         return res
 
-    def _frozen(self, x, conf, bones, rate_hz, skeleton: Skeleton, history: np.ndarray | None) -> np.ndarray:
+    def _frozen(self, x, conf, bones, rate_hz, skeleton: Skeleton) -> np.ndarray:
         """``(T, J)`` bool: inferred samples of a frozen or drifting limb near a tracked
         sample of the same joint (core/frozen.py). A limb inferred for longer than
         ``TRACKED_NEAR_S`` (a seated person's legs under a desk) keeps the sensor's guess:
@@ -523,7 +521,7 @@ class BridgingWindowSolver:
         """(positions, confidence, replaced mask or None): long runs of inferred samples
         moved toward the bridging fill where they part from it (core/inferred.py)."""
         inferred = obs & (conf < 1.0)
-        if not inferred.any() or history is None or len(history) < GUESS_HISTORY_S * rate_hz:
+        if not inferred.any() or history is None or len(history) < VERIFY_HISTORY_S * rate_hz:
             # the fill is only trusted over the sensor's guess once the body has a clean
             # history to train PCA on (the prior alone, at a stream's start, differs from
             # window to window by more than the sensor's inferred limbs do)

@@ -28,6 +28,19 @@ FILE_LOOKAHEAD_S = 1.5  # L: 45 frames at 30 Hz: a frame is 0.7-1.5 s from its w
 FILE_HANDOVER_S = 0.5  # crossfade: the windows share 0.87 s, and a longer fade hides the hand-over
 
 
+def _frames_from_seconds(rate_hz: float, window: int | None, lookahead: int | None, hop: int | None,
+                         seconds: tuple[float, float, float]) -> tuple[int, int, int]:
+    """(W, L, H) frames: those given, the others from ``seconds`` (window, lookahead, hop)
+    at ``rate_hz``, a default lookahead at most ``W - 1`` and a default hop at most ``L + 1``."""
+    def frames(s: float) -> int:
+        return max(1, int(round(s * rate_hz)))
+
+    W = frames(seconds[0]) if window is None else window
+    L = min(frames(seconds[1]), W - 1) if lookahead is None else lookahead
+    H = min(frames(seconds[2]), L + 1) if hop is None else hop
+    return W, L, H
+
+
 @dataclass(frozen=True)
 class EngineConfig:
     """Streaming engine settings (frames, seconds, Hz).
@@ -97,18 +110,12 @@ class EngineConfig:
         rate = float(rate_hz)
         if not (np.isfinite(rate) and rate > 0):
             raise ValueError(f"rate_hz must be a positive number, got {rate_hz}")
-        window = settings.pop("window", None)
-        if window is None:
-            window = max(1, int(round(DEFAULT_WINDOW_S * rate)))
-        lookahead = settings.pop("lookahead", None)
         lookahead_s = settings.pop("lookahead_s", None)
-        if lookahead_s is not None:
-            lookahead = int(round(float(lookahead_s) * rate))
-        elif lookahead is None:
-            lookahead = min(max(0, int(round(FILE_LOOKAHEAD_S * rate))), window - 1)
-        hop = settings.pop("hop", None)
-        if hop is None:
-            hop = min(max(1, int(round(FILE_HOP_S * rate))), lookahead + 1)
+        lookahead = settings.pop("lookahead", None) if lookahead_s is None else int(round(float(lookahead_s) * rate))
+        window, lookahead, hop = _frames_from_seconds(
+            rate, settings.pop("window", None), lookahead, settings.pop("hop", None),
+            (DEFAULT_WINDOW_S, FILE_LOOKAHEAD_S, FILE_HOP_S),
+        )
         base: dict[str, Any] = {"window": window, "hop": hop, "lookahead": lookahead, "handover_s": FILE_HANDOVER_S}
         base.update(settings)
         return cls(rate_hz=rate, **base)
@@ -122,14 +129,11 @@ class EngineConfig:
             object.__setattr__(self, "lookahead", int(round(self.lookahead_s * self.rate_hz)))
             object.__setattr__(self, "lookahead_s", None)
         # frame counts left unset follow the defaults in seconds at this rate
-        for name, seconds in (("window", DEFAULT_WINDOW_S), ("lookahead", DEFAULT_LOOKAHEAD_S), ("hop", DEFAULT_HOP_S)):
-            if getattr(self, name) is None:
-                n = max(1, int(round(seconds * self.rate_hz)))
-                if name == "lookahead":
-                    n = min(n, self.window - 1)
-                if name == "hop":
-                    n = min(n, self.lookahead + 1)
-                object.__setattr__(self, name, n)
+        W, L, H = _frames_from_seconds(self.rate_hz, self.window, self.lookahead, self.hop,
+                                       (DEFAULT_WINDOW_S, DEFAULT_LOOKAHEAD_S, DEFAULT_HOP_S))
+        object.__setattr__(self, "window", W)
+        object.__setattr__(self, "lookahead", L)
+        object.__setattr__(self, "hop", H)
         if not (np.isfinite(self.handover_s) and self.handover_s > 0):
             raise ValueError(f"handover_s must be a positive number of seconds, got {self.handover_s}")
         W, H, L = self.window, self.hop, self.lookahead
