@@ -68,9 +68,14 @@ def undo_limb_swaps(
         pred = 2.0 * x[1:-1, both] - x[:-2, both]  # predicts frames 2..T-1
         keep = np.linalg.norm(x[2:, both] - pred, axis=2)
         cross = np.linalg.norm(x[2:, mirrored] - pred, axis=2)
-        ok = np.isfinite(keep).all(axis=1) & np.isfinite(cross).all(axis=1)
-        k = np.where(ok, keep.mean(axis=1), 0.0)  # rows with a NaN are not ok: their mean is not used
-        c = np.where(ok, cross.mean(axis=1), np.inf)
+        # joints seen in all three frames, both labellings; a frame is judged on at least half
+        # of them (one joint the engine left out of a window's clean history must not hide
+        # the toggle where a swap that began before the window ends)
+        seen = np.isfinite(keep) & np.isfinite(cross)
+        n_seen = seen.sum(axis=1)
+        ok = n_seen >= max(1, (len(both) + 1) // 2)
+        k = np.where(ok, np.where(seen, keep, 0.0).sum(axis=1) / np.maximum(n_seen, 1), 0.0)
+        c = np.where(ok, np.where(seen, cross, 0.0).sum(axis=1) / np.maximum(n_seen, 1), np.inf)
         toggle = np.zeros(T, dtype=bool)
         toggle[2:] = ok & (k > cfg.min_offset_m) & (c < cfg.ratio * k)
         if not toggle.any():
