@@ -92,3 +92,31 @@ def test_inferred_bone_asymmetry_measures_the_inferred_limb_against_its_mirror()
     assert np.isnan(metrics.inferred_bone_asymmetry(stretched, inferred, bones, np.array([0, 1])))
     with pytest.raises(ValueError, match="mirror"):
         metrics.inferred_bone_asymmetry(stretched, inferred, bones, np.array([1]))
+
+
+def test_seam_sums_compare_each_seam_frame_with_its_neighbourhood():
+    """Seam frames packed into the fast first second of a seamless motion: against all
+    other frames they look 'seamy' (the motion, not a seam); against the other frames
+    within a hop they do not. A real kink at those frames still shows either way."""
+    from streamfix.core.metrics import seam_jitter, seam_sums
+
+    t = np.arange(300) / 30.0
+    amp = np.where(t < 1.0, 0.3, 0.01)  # fast first second, then slow
+    x = np.zeros((300, 1, 3))
+    x[:, 0, 0] = amp * np.sin(2 * np.pi * 2.0 * t)
+    seam = np.zeros(300, dtype=bool)
+    seam[np.r_[5:30:5, 4:30:5]] = True  # a hand-over every 5 frames in the first second
+    seam[np.r_[40:300:10, 39:300:10]] = True  # then every 10
+    on, off = seam_jitter(x, seam)
+    assert on / off > 1.5
+    on, off = seam_jitter(x, seam, radius=10)
+    assert on / off == pytest.approx(1.0, abs=0.1)
+    kinked = x.copy()
+    kinked[:, 0, 1] = 2e-2 * np.cumsum(seam & (np.arange(300) % 5 == 0))  # a step at each hand-over
+    on, off = seam_jitter(kinked, seam, radius=10)
+    assert on / off > 2.0
+    d2 = np.abs(np.diff(x[:, 0, 0], 2))[:, None]
+    s_sum, s_n, o_sum, o_n = seam_sums(d2, seam[1:-1], radius=10)
+    assert s_n == o_n == int(seam[1:-1].sum())
+    with pytest.raises(ValueError, match="seam mask"):
+        seam_sums(d2, seam)

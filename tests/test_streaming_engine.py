@@ -399,3 +399,37 @@ def test_degraded_windows_get_fewer_solver_iterations(kinect):
     engine.close()
     assert seen[0] == 40  # the first window, before the solver fell behind
     assert min(seen) <= 20  # later ones with the degraded cap
+
+
+
+def test_a_bodys_first_window_fills_with_extra_windows_then_the_regular_grid(kinect):
+    """serve's schedule at 30 Hz (W 60, H 10, L 15, start-up hop 5): windows end every 5
+    frames from 16 while the first window fills (end < 60), then on the regular grid 66,
+    76, ..., the same as without start-up windows; a body whose grid a phase shifts keeps
+    its shifted grid."""
+    from streamfix.streaming.blending import next_window_end, window_ends
+
+    cfg = EngineConfig(rate_hz=30.0)
+    assert (cfg.window, cfg.hop, cfg.lookahead, cfg.startup_hop) == (60, 10, 15, 5)
+    lengths: list[int] = []
+
+    def solver(positions, confidence, bones, bone_lengths, rate_hz, config=None, state=None, init=None):
+        lengths.append(len(positions))
+        return identity_solver(positions, confidence, bones, bone_lengths, rate_hz)
+
+    engine = StreamEngine(KINECT_V2, cfg, solver)
+    T = 140
+    for i in range(T):
+        engine.push(SkeletonFrame("k", i, int(i * NS / 30), KINECT_V2.name,
+                                  [BodyFrame(0, kinect.positions[i].copy(), kinect.confidence[i].copy())]))
+    ends = window_ends(T, 15, 10, 60, 5)
+    assert list(ends[:13]) == [16, 21, 26, 31, 36, 41, 46, 51, 56, 61, 66, 76, 86]
+    assert lengths[:11] == [16, 21, 26, 31, 36, 41, 46, 51, 56, 60, 60]
+    assert len(lengths) == engine.metrics()["windows_scheduled"] == int((ends <= T).sum())
+    # phase 6 (grid 10 + 10 k): 16, then the start-up windows stop at grid points too
+    got, end = [], 16
+    while end < 90:
+        end = next_window_end(end, 60, 10, 5, 10)
+        got.append(end)
+    assert got == [20, 25, 30, 35, 40, 45, 50, 55, 60, 70, 80, 90]
+    assert EngineConfig.for_files(30.0).startup_hop == EngineConfig.for_files(30.0).hop  # files: none

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from streamfix.io import read_motion
-from streamfix.streaming.engine import EngineConfig, StreamEngine
+from streamfix.streaming.engine import EngineConfig, StreamEngine, WindowOutput
 from streamfix.streaming.offline import clean_motion, motion_frames
 
 
@@ -76,20 +76,27 @@ def test_offline_clean_equals_engine_clean_when_a_window_fails(kinect):
     """A failed window leaves frames to the live path's value: offline then runs it too."""
     from streamfix.streaming.engine import default_window_solver
 
-    motion = kinect.slice(0, 90)
-    bad_end = 45  # the window ending at this frame raises
+    motion = kinect.slice(0, 130)
+    cfg = EngineConfig(rate_hz=motion.rate_hz)
+    newest = []  # each window's newest frame, in order
+
+    def recording(positions, confidence, bones, bone_lengths, rate_hz, **kwargs):
+        newest.append(positions[-1].copy())
+        return WindowOutput(positions.copy(), ~(confidence > 0), None, 1, True)
+
+    clean_motion(motion, cfg, recording)
+    bad = newest[13]  # the 14th window raises: after the start-up windows (every frame in those has 3)
 
     def failing_solver():
         inner = default_window_solver()
 
         def solve(positions, confidence, bones, bone_lengths, rate_hz, **kwargs):
-            if np.array_equal(positions[-1], motion.positions[bad_end - 1], equal_nan=True):
+            if np.array_equal(positions[-1], bad, equal_nan=True):
                 raise RuntimeError("window failed")
             return inner(positions, confidence, bones, bone_lengths, rate_hz, **kwargs)
 
         return solve
 
-    cfg = EngineConfig(rate_hz=motion.rate_hz)
     engine = StreamEngine(motion.skeleton, cfg, failing_solver())
     out = []
     for frame in motion_frames(motion):

@@ -167,7 +167,6 @@ def test_no_seam_at_window_handovers(shared_data):
     frames (issue 8), on the longest real Kinect take (measured 1.075; its input 0.72)."""
     from streamfix.core.metrics import seam_jitter
     from streamfix.io.kinect_csv import read_kinect_csv
-    from streamfix.streaming.blending import crossfade_frames, handover_frames
     from streamfix.streaming.engine import EngineConfig
     from streamfix.streaming.offline import clean_motion
 
@@ -175,8 +174,8 @@ def test_no_seam_at_window_handovers(shared_data):
     cfg = EngineConfig(rate_hz=motion.rate_hz)
     out, met = clean_motion(motion, cfg)
     assert met["windows_solved"] > 30
-    seam = handover_frames(motion.n_frames, cfg.lookahead, cfg.hop, crossfade_frames(cfg.handover_s, cfg.rate_hz))
-    on, off = seam_jitter(out.positions, seam)
+    seam = cfg.handover_frames(motion.n_frames)
+    on, off = seam_jitter(out.positions, seam, cfg.hop)
     assert on / off < 1.1
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from .robust_stats import nanmedian
 
-__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors", "seam_jitter",
+__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors", "seam_jitter", "seam_sums",
            "inferred_bone_asymmetry"]
 
 
@@ -132,12 +132,48 @@ def gap_mae(pred: np.ndarray, truth: np.ndarray, missing: np.ndarray) -> float:
     return _nanmean(err[missing])
 
 
-def seam_jitter(positions: np.ndarray, seam: np.ndarray) -> tuple[float, float]:
+def seam_sums(d2: np.ndarray, seam: np.ndarray, radius: int | None = None) -> tuple[float, int, float, int]:
+    """Partial sums of the seam measure: ``(seam_sum, seam_n, other_sum, other_n)``.
+
+    ``d2`` ``(T, J)``: each joint-frame's second difference (NaN = undefined or not
+    scored); ``seam`` ``(T,)`` bool marks frames (the two around each window hand-over).
+    ``seam_sum / seam_n`` is the mean over the finite seam joint-frames. ``radius`` None:
+    ``other_sum / other_n`` is the mean over all the other finite joint-frames. ``radius``
+    r (frames): it is the mean, over the same seam joint-frames, of each one's *local*
+    baseline, the same joint's mean over the other frames within r frames (seam
+    joint-frames without one are left out of both sums). Why local: where hand-overs are
+    closer together (a body's first window, :func:`streamfix.streaming.blending.next_window_end`)
+    a global mean would compare that stretch's motion with the rest of the take's.
+    """
+    d2 = np.asarray(d2, dtype=np.float64)
+    seam = np.asarray(seam, dtype=bool)
+    if d2.ndim != 2 or seam.shape != (d2.shape[0],):
+        raise ValueError(f"expected (T, J) second differences and a (T,) seam mask, got {d2.shape} and {seam.shape}")
+    finite = np.isfinite(d2)
+    on = finite & seam[:, None]
+    off = finite & ~seam[:, None]
+    if radius is None:
+        return float(d2[on].sum()), int(on.sum()), float(d2[off].sum()), int(off.sum())
+    T = d2.shape[0]
+    r = max(int(radius), 1)
+    zero = np.zeros((1, d2.shape[1]))
+    total = np.concatenate([zero, np.cumsum(np.where(off, d2, 0.0), axis=0)])
+    count = np.concatenate([zero, np.cumsum(off, axis=0)])
+    t = np.arange(T)
+    lo, hi = np.maximum(t - r, 0), np.minimum(t + r + 1, T)
+    n = count[hi] - count[lo]                                    # (T, J) other frames within r
+    base = np.divide(total[hi] - total[lo], n, out=np.zeros_like(d2), where=n > 0)
+    use = on & (n > 0)
+    return float(d2[use].sum()), int(use.sum()), float(base[use].sum()), int(use.sum())
+
+
+def seam_jitter(positions: np.ndarray, seam: np.ndarray, radius: int | None = None) -> tuple[float, float]:
     """(mean second difference on the ``seam`` frames, on the others), m/frame^2.
 
     ``seam`` ``(T,)`` bool marks frames (e.g. the two around each window hand-over); the
-    second difference of frame ``t`` is ``|x_{t+1} - 2 x_t + x_{t-1}|`` averaged over
-    joints, defined for ``1 <= t <= T - 2`` (the end frames count for neither side).
+    second difference of frame ``t`` is ``|x_{t+1} - 2 x_t + x_{t-1}|`` per joint, defined
+    for ``1 <= t <= T - 2`` (the end frames count for neither side); ``radius``: the other
+    frames are those within that many frames of each seam frame (:func:`seam_sums`).
     """
     x = np.asarray(positions, dtype=np.float64)
     seam = np.asarray(seam, dtype=bool)
@@ -146,5 +182,5 @@ def seam_jitter(positions: np.ndarray, seam: np.ndarray) -> tuple[float, float]:
     if x.shape[0] < 3:
         return float("nan"), float("nan")
     d2 = np.linalg.norm(x[2:] - 2.0 * x[1:-1] + x[:-2], axis=-1)  # (T-2, J)
-    inner = seam[1:-1]
-    return _nanmean(d2[inner]), _nanmean(d2[~inner])
+    s_sum, s_n, o_sum, o_n = seam_sums(d2, seam[1:-1], radius)
+    return (s_sum / s_n if s_n else float("nan")), (o_sum / o_n if o_n else float("nan"))

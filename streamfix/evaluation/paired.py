@@ -24,7 +24,8 @@ scores the output against the reference, per dataset and per body region (``all`
      lag_frames,                  # argmax of the velocity cross-correlation against the
      lag_frames_median,           #   reference, pooled over takes / median of per-take argmax
      seam_ratio,                  # mean |second difference| on frames next to an engine window
-                                  #   hand-over / on the other frames (every method: ~1 = no seam)
+                                  #   hand-over / on the other frames within a hop of them
+                                  #   (every method: ~1 = no seam)
      abe_m: None, time_s}
 
 Aggregation over takes: means are frame-weighted (pooled over joint-frames), p95 is over
@@ -36,7 +37,8 @@ Lag: per take, the ``FAST_JOINTS`` joints of the region whose reference moves fa
 Seam: the two frames around each window hand-over, where the engine's blend passes a
 frame to the newer window (:func:`streamfix.evaluation.registry.handover_frames`), on the
 schedule the method ran at the take's rate (the file schedule for ``streamfix``, ``serve``'s
-for every other method).
+for every other method), each against the same joint's other frames within one hop
+(:func:`streamfix.core.metrics.seam_sums`: a body's first window has more hand-overs).
 
 Methods come from :mod:`streamfix.evaluation.registry`; names it does not know are
 skipped with a warning (:data:`DEFAULT_METHODS` names the baselines users pick).
@@ -114,7 +116,8 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
         deb = np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)
         slow = slow_error_norm(y, ref, take.sensor.rate_hz)
         d2 = second_difference_norm(y)
-        seam = handover_frames(T, take.sensor.rate_hz, name)
+        schedule = registry.engine_config(name, take.sensor.rate_hz)
+        seam = schedule.handover_frames(T)
         for region, joints in regions.items():
             jm = joints[None, :]
             e_ok = has_ref & jm & np.isfinite(err)
@@ -124,7 +127,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
             ref_joints = np.flatnonzero(joints & take.referenced)
             fast = ref_joints[np.argsort(-np.nan_to_num(speed[ref_joints]))[:FAST_JOINTS]]
             lags, xc = velocity_xcorr(y[:, fast], ref[:, fast], MAX_LAG_FRAMES)
-            s_ok = np.isfinite(d2) & jm
+            seam_sum, seam_n, other_sum, other_n = metrics.seam_sums(np.where(jm, d2, np.nan), seam, schedule.hop)
             out[(name, region)] = {
                 "frames": T,
                 "err_sum": float(err[e_ok].sum()), "err_n": int(e_ok.sum()), "ref_n": int((has_ref & jm).sum()),
@@ -133,8 +136,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
                 "jit_sum": float(d2[j_ok].sum()), "jit_ref_sum": float(d2_ref[j_ok].sum()), "jit_n": int(j_ok.sum()),
                 "cv": cv,
                 "xcorr": xc, "lag": int(lags[np.nanargmax(xc)]) if np.isfinite(xc).any() else None,
-                "seam_sum": float(d2[s_ok & seam[:, None]].sum()), "seam_n": int((s_ok & seam[:, None]).sum()),
-                "other_sum": float(d2[s_ok & ~seam[:, None]].sum()), "other_n": int((s_ok & ~seam[:, None]).sum()),
+                "seam_sum": seam_sum, "seam_n": seam_n, "other_sum": other_sum, "other_n": other_n,
                 "time_s": dt,
                 "rate_hz": take.sensor.rate_hz,
                 "n_joints": int((joints & take.referenced).sum()),

@@ -91,11 +91,7 @@ def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serv
     """``(T,)`` bool: the two frames around each window hand-over of the schedule ``method``
     ran (:func:`engine_config`), where the blend passes a frame to the newer window
     (:func:`streamfix.streaming.blending.handover_frames`): the frames a seam would show on."""
-    from ..streaming.blending import crossfade_frames
-    from ..streaming.blending import handover_frames as blend_handovers
-
-    cfg = engine_config(method, rate_hz)
-    return blend_handovers(n_frames, cfg.lookahead, cfg.hop, crossfade_frames(cfg.handover_s, cfg.rate_hz))
+    return engine_config(method, rate_hz).handover_frames(n_frames)
 
 
 def _engine_method(name: str) -> Method:

@@ -23,7 +23,8 @@ An error is None where the method left any of its joint-frames NaN (``input`` on
 frames are the two around each window hand-over of the schedule the method ran
 (:func:`streamfix.evaluation.registry.handover_frames`: where the engine's blend passes a
 frame to the newer window; ``serve``'s schedule for methods without windows, so the
-baselines show what no seam looks like).
+baselines show what no seam looks like), against the other frames within one hop
+(:func:`streamfix.core.metrics.seam_sums`).
 :func:`summarise` pools records over files and seeds (joint-frame weighted).
 """
 from __future__ import annotations
@@ -41,7 +42,7 @@ from ..core import metrics
 from ..motion import Motion
 from ..sim.sensor_errors import KINDS, MIX_KINDS, apply_sensor_errors
 from ..skeletons import KINECT_V2
-from .registry import METHODS, handover_frames, is_kinect_file, load_motion, run_method
+from .registry import METHODS, engine_config, handover_frames, is_kinect_file, load_motion, run_method
 
 __all__ = [
     "run_sensor",
@@ -108,10 +109,11 @@ def _mean(err: np.ndarray, mask: np.ndarray) -> float | None:
     return float(v.mean())
 
 
-def _score(pred: np.ndarray, truth: np.ndarray, corrupted: np.ndarray, seam: np.ndarray, bones: np.ndarray) -> dict:
+def _score(pred: np.ndarray, truth: np.ndarray, corrupted: np.ndarray, seam: tuple[np.ndarray, int],
+           bones: np.ndarray) -> dict:
     err = metrics.joint_errors(pred, truth)
     all_ = np.ones_like(corrupted)
-    seam_d2, other_d2 = metrics.seam_jitter(pred, seam)
+    seam_d2, other_d2 = metrics.seam_jitter(pred, *seam)
     return {
         "err_m": _mean(err, all_),
         "err_corrupted_m": _mean(err, corrupted),
@@ -145,7 +147,8 @@ def run_sensor(paths, *, rate_hz=None, levels=None, seed=0, methods=None, kinds=
         T, J, _ = truth.shape
         if T < 3:
             raise ValueError(f"{path}: the sensor protocol needs at least 3 frames at {rate:g} Hz, got {T}")
-        seams = {name: handover_frames(T, rate, name) for name in names}
+        schedules = {name: engine_config(name, rate) for name in names}
+        seams = {name: (cfg.handover_frames(T), cfg.hop) for name, cfg in schedules.items()}  # frames, local radius
         for kind in kinds:
             for s in range(int(seed), int(seed) + int(n_seeds)):
                 rng = _rng(s, kind, path)

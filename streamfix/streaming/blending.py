@@ -4,15 +4,47 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HANDOVER_S", "crossfade_frames", "handover_frames", "handover_weights"]
+__all__ = ["HANDOVER_S", "crossfade_frames", "handover_frames", "handover_weights", "next_window_end", "window_ends"]
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
 
 
-def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None) -> np.ndarray:
+def next_window_end(end: int, window: int, hop: int, startup_hop: int, origin: int) -> int:
+    """End (frame of a body's timeline) of the window after the one ending at ``end``.
+
+    Windows end on the grid ``origin + k * hop`` (``origin``: the body's first window end
+    ``L + 1``, less its phase, :func:`streamfix.streaming.bodies.hop_phase`). Until the body
+    has a whole window of frames (``end < window``) a window also ends every
+    ``startup_hop`` frames between grid points. Why: a body's first windows are short (the
+    first holds ``L + 1`` frames) and consecutive short windows disagree more than whole
+    ones; in between, each frame gets a window with more of its future, and two windows
+    share ``L + 1 - startup_hop`` frames, a longer crossfade. The extra windows are short,
+    so they cost little, and the grid after them is the same.
+    """
+    grid = origin + hop * ((end - origin) // hop + 1)
+    return min(end + startup_hop, grid) if end < window else grid
+
+
+def window_ends(n_frames: int, lookahead: int, hop: int, window: int | None = None,
+                startup_hop: int | None = None) -> np.ndarray:
+    """Ends of one body's windows (the engine's schedule, first window at ``L + 1``, phase
+    0), every window that blends into a frame ``< n_frames``; ``startup_hop`` per
+    :func:`next_window_end` (None: ``hop`` throughout)."""
+    L, H = int(lookahead), int(hop)
+    if window is None or startup_hop is None or startup_hop >= H:
+        return np.arange(L + 1, int(n_frames) + L + 2, H)
+    ends = [L + 1]
+    while ends[-1] < int(n_frames) + L + 1:
+        ends.append(next_window_end(ends[-1], int(window), H, int(startup_hop), L + 1))
+    return np.asarray(ends)
+
+
+def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: int | None = None,
+                     hop_before: int | None = None) -> np.ndarray:
     """Overlap-add weight of a window for frames that saw ``future`` (>= 1) of its frames
     after them: a complementary crossfade over the ``K = L + 1 - H`` frames two
-    consecutive windows share.
+    consecutive windows share. ``hop``: frames to the next window (its ``K`` shapes
+    the rise); ``hop_before``: frames from the previous one (the fall; None = ``hop``).
 
     A frame ``n`` is blended from the windows ending at ``e`` with ``1 <= d = e - n <= L + 1``;
     with a regular hop, two consecutive windows overlap on ``K`` frames where the older
@@ -31,15 +63,19 @@ def handover_weights(future: np.ndarray, lookahead: int, hop: int, crossfade: in
     kink in the clean output every hop.
     """
     d = np.asarray(future, dtype=np.float64)
-    K = max(int(lookahead) + 1 - int(hop), 1)
-    F = K if crossfade is None else min(max(int(crossfade), 1), K)
+
+    def fade(h) -> tuple[np.ndarray, np.ndarray]:  # (K, F) for consecutive windows h frames apart
+        K = np.maximum(int(lookahead) + 1 - np.asarray(h, dtype=np.int64), 1)
+        return K, (K if crossfade is None else np.minimum(max(int(crossfade), 1), K))
 
     def smoothstep(z: np.ndarray) -> np.ndarray:
         z = np.clip(z, 0.0, 1.0)
         return z * z * (3.0 - 2.0 * z)
 
+    K, F = fade(hop)
+    Fb = F if hop_before is None else fade(hop_before)[1]
     rise = smoothstep((d - 0.5 - (K - F)) / F)
-    fall = smoothstep((lookahead + 1.5 - d) / F)
+    fall = smoothstep((lookahead + 1.5 - d) / Fb)
     return 1e-3 + np.minimum(rise, fall)
 
 
@@ -48,11 +84,13 @@ def crossfade_frames(handover_s: float, rate_hz: float) -> int:
     return max(1, int(round(float(handover_s) * float(rate_hz))))
 
 
-def handover_frames(n_frames: int, lookahead: int, hop: int, crossfade: int) -> np.ndarray:
+def handover_frames(n_frames: int, lookahead: int, hop: int, crossfade: int, window: int | None = None,
+                    startup_hop: int | None = None) -> np.ndarray:
     """``(T,)`` bool: the two frames around each window hand-over of the engine's blend.
 
-    Windows end at ``e_k = L + 1 + k H`` (the engine's schedule for a body's timeline) and
-    frame ``n`` is blended from those with ``1 <= e - n <= L + 1`` by
+    Windows end where :func:`window_ends` says (the engine's schedule for a body's
+    timeline; ``window`` and ``startup_hop`` as in :func:`next_hop`, None = a regular
+    hop) and frame ``n`` is blended from those with ``1 <= e - n <= L + 1`` by
     :func:`handover_weights`; the hand-over is the first frame whose largest weight belongs
     to a newer window than its predecessor's. That frame and the one before it are marked:
     where a crossfade that does not hide the change between two windows' solutions shows
@@ -60,13 +98,16 @@ def handover_frames(n_frames: int, lookahead: int, hop: int, crossfade: int) -> 
     """
     T = int(n_frames)
     out = np.zeros(max(T, 0), dtype=bool)
-    L, H = int(lookahead), int(hop)
+    L = int(lookahead)
     if T < 2:
         return out
-    ends = np.arange(L + 1, T + L + 2, H)  # every window that blends into a frame < T
+    ends = window_ends(T, L, hop, window, startup_hop)  # every window that blends into a frame < T
+    gaps = np.diff(ends)
+    after = np.append(gaps, int(hop))[None, :]  # frames to each window's successor
+    before = np.insert(gaps, 0, after[0, 0])[None, :]  # and from its predecessor
     d = ends[None, :] - np.arange(T)[:, None]  # (T, K)
     valid = (d >= 1) & (d <= L + 1)
-    w = np.where(valid, handover_weights(np.clip(d, 1, L + 1), L, H, crossfade), -np.inf)
+    w = np.where(valid, handover_weights(np.clip(d, 1, L + 1), L, after, crossfade, before), -np.inf)
     has = valid.any(axis=1)
     dominant = np.where(has, np.argmax(w, axis=1), -1)
     switch = np.flatnonzero((dominant[1:] > dominant[:-1]) & has[1:] & has[:-1]) + 1

@@ -49,6 +49,7 @@ class Job:
     __slots__ = (
         "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
         "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final", "history",
+        "hop_before", "hop_after",
     )
 
     def __init__(self, body: "Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
@@ -65,6 +66,7 @@ class Job:
         self.error: str | None = None
         self.final = final
         self.history: np.ndarray | None = None
+        self.hop_before = self.hop_after = 0  # frames from the previous window's end / to the next one's (blend weights)
 
 
 def hop_phase(ordinal: int, hop: int) -> int:
@@ -103,7 +105,7 @@ class Body:
         self.count = 0  # frames in the timeline
         self.final_upto = 0  # next frame to finalise
         self.next_end = cfg.lookahead + 1  # end of the next window to schedule
-        self.phase = 0  # frames the second window comes early by (spreads bodies over the hop)
+        self.phase = 0  # frames the window grid after the first window is shifted early by (spreads bodies over the hop)
         self.last_scheduled_end = 0
         self.last_processed_end = 0
         self.last_present = -1

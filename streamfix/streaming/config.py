@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .blending import HANDOVER_S
+from .blending import HANDOVER_S, crossfade_frames, handover_frames
 from .live import LiveConfig
 
 __all__ = [
@@ -75,6 +75,9 @@ class EngineConfig:
     re-runs with the live path when it is not 0).
     handover_s: the crossfade at a window hand-over, seconds (at most the frames two
     consecutive windows share; see :func:`streamfix.streaming.blending.handover_weights`).
+    startup_hop: the hop (frames) while a body's first ``window`` frames arrive
+    (:func:`streamfix.streaming.blending.next_window_end`); None = ``max(1, hop // 2)``, at most
+    ``hop`` (= no extra windows: the file schedule, whose 1.5 s lookahead gains nothing from them).
     """
 
     window: int | None = None
@@ -100,6 +103,7 @@ class EngineConfig:
     live_anchor: bool = False
     live_output: bool = True
     handover_s: float = HANDOVER_S
+    startup_hop: int | None = None
 
     @classmethod
     def for_files(cls, rate_hz: float = 30.0, **settings: Any) -> "EngineConfig":
@@ -116,7 +120,8 @@ class EngineConfig:
             rate, settings.pop("window", None), lookahead, settings.pop("hop", None),
             (DEFAULT_WINDOW_S, FILE_LOOKAHEAD_S, FILE_HOP_S),
         )
-        base: dict[str, Any] = {"window": window, "hop": hop, "lookahead": lookahead, "handover_s": FILE_HANDOVER_S}
+        base: dict[str, Any] = {"window": window, "hop": hop, "lookahead": lookahead, "handover_s": FILE_HANDOVER_S,
+                                "startup_hop": hop}
         base.update(settings)
         return cls(rate_hz=rate, **base)
 
@@ -143,6 +148,10 @@ class EngineConfig:
             raise ValueError(f"lookahead must be in 0..window-1 = 0..{W - 1} frames, got {L}")
         if not 1 <= H <= L + 1:
             raise ValueError(f"hop must be in 1..lookahead+1 = 1..{L + 1} frames, got {H}")
+        if self.startup_hop is None:
+            object.__setattr__(self, "startup_hop", max(1, H // 2))
+        elif not 1 <= self.startup_hop <= H:
+            raise ValueError(f"startup_hop must be in 1..hop = 1..{H} frames, got {self.startup_hop}")
         if self.max_hop is not None and not H <= self.max_hop <= W:
             raise ValueError(f"max_hop must be in hop..window = {H}..{W}, got {self.max_hop}")
         if self.max_iterations is not None and self.max_iterations < 1:
@@ -156,6 +165,12 @@ class EngineConfig:
     def latency_s(self) -> float:
         """Fixed latency of the clean output before compute (the lookahead), seconds."""
         return self.lookahead / self.rate_hz
+
+    def handover_frames(self, n_frames: int) -> np.ndarray:
+        """``(T,)`` bool: the frames around this schedule's window hand-overs for one body
+        (:func:`streamfix.streaming.blending.handover_frames`), where a seam would show."""
+        return handover_frames(n_frames, self.lookahead, self.hop, crossfade_frames(self.handover_s, self.rate_hz),
+                               self.window, self.startup_hop)
 
     @property
     def hop_limit(self) -> int:

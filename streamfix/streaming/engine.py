@@ -13,7 +13,9 @@ Per body, frames are numbered ``n = 0, 1, ...`` from the body's first frame (its
 window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
 
 * window ``k`` ends at ``e_k = L + 1 + k H`` (exclusive) and covers frames
-  ``[max(0, e_k - W), e_k)``; it is solved as soon as frame ``e_k - 1`` has arrived,
+  ``[max(0, e_k - W), e_k)``; while the body's first ``W`` frames arrive, windows also
+  end every ``startup_hop`` frames between those (:func:`~streamfix.streaming.blending.next_window_end`:
+  the short first windows disagree most, and then share more frames); it is solved as soon as frame ``e_k - 1`` has arrived,
   warm-started from the previous window's solver state shifted by the hop
   (``state.shifted(e_k - e_{k-1})``) when both windows have the full length ``W``;
 * the solution of window ``k`` is blended into every not-yet-emitted frame it covers
@@ -119,7 +121,7 @@ import numpy as np
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
-from .blending import HANDOVER_S, crossfade_frames, handover_weights
+from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end
 from .bone_lengths import LengthSources, record_raw_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,
@@ -478,9 +480,11 @@ class StreamEngine:
                 body.absent += 1
             body.count += 1
             if body.count == body.next_end:
-                self._schedule(st, body, body.count)
-                body.next_end = body.count + max(1, self.hop - body.phase)
-                body.phase = 0
+                # extra windows while the body's first window fills (blending.next_window_end); not while degraded
+                startup = self.cfg.startup_hop if self.level == 0 else self.hop
+                body.next_end = next_window_end(body.count, self.cfg.window, self.hop, startup,
+                                                self.cfg.lookahead + 1 - body.phase)
+                self._schedule(st, body, body.count, hop_after=body.next_end - body.count)
         # live output in input body order
         if self.cfg.live_output:
             live_frame = SkeletonFrame(
@@ -535,8 +539,9 @@ class StreamEngine:
             return max(1, lvl1 // 2)
         return lvl1
 
-    def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False) -> None:
-        """Create the job for the window ending at ``end`` and solve/submit it."""
+    def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False, hop_after: int | None = None) -> None:
+        """Create the job for the window ending at ``end`` and solve/submit it; ``hop_after``:
+        frames to the body's next window (None: the hop)."""
         W = self.cfg.window
         win = body.ring.window(W, end)
         if win.end - win.start < 1:
@@ -546,6 +551,8 @@ class StreamEngine:
             body, win.start, win.end, win.positions.copy(), win.confidence.copy(),
             self._length_sources(body), self._iterations(), final,
         )
+        job.hop_after = self.hop if hop_after is None else hop_after
+        job.hop_before = end - body.last_scheduled_end if body.last_scheduled_end > 0 else job.hop_after
         if self._history:
             # the clean output of the frames before the window (row -1 = frame start - 1)
             h = body.history()
@@ -732,7 +739,7 @@ class StreamEngine:
             return
         T = job.end - job.start
         crossfade = crossfade_frames(self.cfg.handover_s, self.cfg.rate_hz)
-        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, self.hop, crossfade)
+        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, job.hop_after, crossfade, job.hop_before)
         x = job.result_pos[lo - job.start:]
         r = job.result_rec[lo - job.start:].astype(np.float64)
         rows = np.arange(lo, job.end) % body.cap
