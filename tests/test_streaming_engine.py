@@ -433,3 +433,22 @@ def test_a_bodys_first_window_fills_with_extra_windows_then_the_regular_grid(kin
         got.append(end)
     assert got == [20, 25, 30, 35, 40, 45, 50, 55, 60, 70, 80, 90]
     assert EngineConfig.for_files(30.0).startup_hop == EngineConfig.for_files(30.0).hop  # files: none
+
+
+def test_start_up_windows_are_owed_not_an_overload(kinect):
+    """While their first windows fill, bodies owe hop / startup_hop windows per hop: the
+    overload test counts that many in flight as normal (12 bodies starting together were
+    degraded by the extra windows in bench_service), and one per body afterwards."""
+    cfg = EngineConfig(rate_hz=30.0)
+    engine = StreamEngine(KINECT_V2, cfg, identity_solver)
+
+    def push(i):
+        bodies = [BodyFrame(b, kinect.positions[i].copy(), kinect.confidence[i].copy()) for b in range(3)]
+        engine.push(SkeletonFrame("k", i, int(i * NS / 30), KINECT_V2.name, bodies))
+
+    for i in range(30):
+        push(i)
+    assert engine._windows_due() == 3 * cfg.hop / cfg.startup_hop == 6
+    for i in range(30, 70):
+        push(i)
+    assert engine._windows_due() == 3

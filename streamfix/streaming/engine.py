@@ -567,7 +567,7 @@ class StreamEngine:
             self._run_job(job)
             return
         self._degrade_check()
-        if self._inflight >= self.cfg.max_pending_windows * self._active_bodies() and not final:
+        if self._inflight >= self.cfg.max_pending_windows * self._windows_due() and not final:
             job.status = "skipped"
             self.counters["windows_skipped"] += 1
             return
@@ -579,11 +579,20 @@ class StreamEngine:
         """Bodies currently tracked over all streams (>= 1): each owes one window per hop."""
         return max(1, sum(len(st.bodies) for st in self.streams.values()))
 
+    def _windows_due(self) -> float:
+        """Windows the tracked bodies owe per hop, over all streams (>= 1): one per body, and
+        ``hop / startup_hop`` for a body whose first window is still filling (at level 0;
+        those windows are short, so the time a body's windows may take per hop is the same)."""
+        startup = self.hop / self.cfg.startup_hop if self.level == 0 else 1.0
+        W = self.cfg.window
+        return max(1.0, float(sum(startup if b.count < W else 1.0 for st in self.streams.values() for b in st.bodies.values())))
+
     def _degrade_check(self) -> None:
         """Overloaded when the worker cannot finish one window per body per hop.
 
-        Budgets scale with the number of tracked bodies: with N bodies, N windows are
-        due every hop, so N windows in flight is normal and each may take hop / N.
+        Budgets scale with the number of tracked bodies: with N bodies, N windows are due
+        every hop (more while their first windows fill, :meth:`_windows_due`), so that many
+        windows in flight is normal and a body's window may take hop / N.
         (Measured: an engine-wide "any window in flight" test degraded 12 bodies at
         30 Hz to level 3 and skipped 53 windows although the solver used ~40 % of a core.)
         """
@@ -591,7 +600,7 @@ class StreamEngine:
             return
         n = self._active_bodies()
         budget_s = self.hop / self.cfg.rate_hz / n
-        overloaded = self._inflight > n or self._last_solve_s > budget_s
+        overloaded = self._inflight > self._windows_due() or self._last_solve_s > budget_s
         if overloaded:
             self._healthy = 0
             progressed = self._done_total > self._done_at_change or self._inflight > self._pending_at_change
