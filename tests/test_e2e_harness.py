@@ -30,10 +30,34 @@ def child_env() -> dict:
     return env
 
 
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        lo, hi = (int(v) for v in Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+        return lo, hi
+    except (OSError, ValueError):
+        return 32768, 60999  # Linux's default
+
+
+_PORTS = iter(())
+
+
 def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback TCP port free now, below the kernel's ephemeral range: a port the OS hands
+    out for binding to 0 can be taken again as the local end of any outgoing connection
+    (a ZeroMQ connect) before the child binds it ("Address already in use" at random)."""
+    global _PORTS
+    lo = min(_ephemeral_range()[0], 32768)
+    start = 20000 + (os.getpid() * 7919) % max(1, lo - 20000 - 1)
+    for _ in range(2):
+        for port in _PORTS:
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    continue
+                return port
+        _PORTS = iter(list(range(start, lo)) + list(range(20000, start)))
+    raise RuntimeError(f"no free loopback port in 20000..{lo - 1}")
 
 
 def fetch_metrics(port: int, timeout: float = 2.0) -> dict[str, float]:

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 
+from test_e2e_harness import free_port
 from test_protocol_live import MISSING_JOINT, RECOVERED_JOINT, LoopbackPublisher, expected_positions
 
 from streamfix.skeletons import KINECT_V2
@@ -66,21 +67,13 @@ def test_tap_topic_filters_and_times_out_with_exit_2():
     assert all(" bodies=2 1:23/1/1 4:23/1/1 " in line for line in lines)  # observed/recovered/missing
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_tap_bind_pull_loses_nothing_sent_before_it_started():
     """SPEC section 1: a connecting PUSH queues frames until the PULL side is up."""
     import zmq
 
     from streamfix.transport.zmq_io import FramePublisher
 
-    endpoint = f"tcp://127.0.0.1:{_free_port()}"
+    endpoint = f"tcp://127.0.0.1:{free_port()}"
     lp = LoopbackPublisher(kind="raw")  # only for its deterministic frames
     lp.pub.close()
     push = FramePublisher(endpoint, bind=False, socket_type=zmq.PUSH)
