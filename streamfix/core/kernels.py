@@ -303,40 +303,40 @@ def running_median(x: np.ndarray, window: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- bone projection
-def _pbd_loop(x, bi, bj, target, share_i, inv_degree, iterations):  # pragma: no cover - compiled
-    n_frames, n_joints, _ = x.shape
+def _pbd_loop(xt, bi, bj, target, wi, wj, iterations):  # pragma: no cover - compiled
+    """Jacobi iterations on ``xt`` ``(J, 3, T)`` in place; ``wi``/``wj`` ``(B, T)``: each bone's
+    share of its length error at its parent/child end, over that joint's bone count. Frames
+    are independent, so the innermost loop runs over them (contiguous: it vectorises)."""
+    n_joints, _, n_frames = xt.shape
     n_bones = bi.shape[0]
-    delta = np.empty((n_joints, 3))
-    for t in range(n_frames):
-        for _ in range(iterations):
-            delta[:, :] = 0.0
-            for b in range(n_bones):
-                i = bi[b]
-                j = bj[b]
-                u0 = x[t, i, 0] - x[t, j, 0]
-                u1 = x[t, i, 1] - x[t, j, 1]
-                u2 = x[t, i, 2] - x[t, j, 2]
+    delta = np.empty((n_joints, 3, n_frames))
+    for _ in range(iterations):
+        delta[:, :, :] = 0.0
+        for b in range(n_bones):
+            i = bi[b]
+            j = bj[b]
+            length = target[b]
+            for t in range(n_frames):
+                u0 = xt[i, 0, t] - xt[j, 0, t]
+                u1 = xt[i, 1, t] - xt[j, 1, t]
+                u2 = xt[i, 2, t] - xt[j, 2, t]
                 norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-                if norm <= 1e-9:
-                    continue
-                err = (norm - target[b]) / max(norm, 1e-9)
-                s = share_i[t, b]
-                c0 = u0 * err
-                c1 = u1 * err
-                c2 = u2 * err
-                delta[i, 0] -= c0 * s * inv_degree[i]
-                delta[i, 1] -= c1 * s * inv_degree[i]
-                delta[i, 2] -= c2 * s * inv_degree[i]
-                delta[j, 0] += (c0 - c0 * s) * inv_degree[j]
-                delta[j, 1] += (c1 - c1 * s) * inv_degree[j]
-                delta[j, 2] += (c2 - c2 * s) * inv_degree[j]
-            for q in range(n_joints):
-                x[t, q, 0] += delta[q, 0]
-                x[t, q, 1] += delta[q, 1]
-                x[t, q, 2] += delta[q, 2]
+                err = (norm - length) / norm if norm > 1e-9 else 0.0
+                a = wi[b, t] * err
+                d = wj[b, t] * err
+                delta[i, 0, t] -= u0 * a
+                delta[i, 1, t] -= u1 * a
+                delta[i, 2, t] -= u2 * a
+                delta[j, 0, t] += u0 * d
+                delta[j, 1, t] += u1 * d
+                delta[j, 2, t] += u2 * d
+        for q in range(n_joints):
+            for c in range(3):
+                for t in range(n_frames):
+                    xt[q, c, t] += delta[q, c, t]
 
 
-_pbd_compiled = _jit(_pbd_loop)
+_pbd_compiled = _jit(_pbd_loop, error_model="numpy")  # vectorised divisions
 
 
 def pbd_constraints(
@@ -379,8 +379,12 @@ def project_bone_lengths_pbd(
     i, j, lengths, share_i, degree = pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
     if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
-    _pbd_compiled(x, i, j, lengths, share_i, 1.0 / np.maximum(degree, 1.0), int(iterations))
-    return x
+    inv_degree = 1.0 / np.maximum(degree, 1.0)
+    wi = np.ascontiguousarray((share_i * inv_degree[i]).T)          # (B, T)
+    wj = np.ascontiguousarray(((1.0 - share_i) * inv_degree[j]).T)
+    xt = np.ascontiguousarray(x.transpose(1, 2, 0))                  # (J, 3, T): frames innermost
+    _pbd_compiled(xt, i, j, lengths, wi, wj, int(iterations))
+    return np.ascontiguousarray(xt.transpose(2, 0, 1))
 
 
 # --------------------------------------------------------------------------- Gauss-Newton step
