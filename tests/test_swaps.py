@@ -54,3 +54,14 @@ def test_a_swap_that_began_before_the_window_ends_where_it_ends_despite_a_joint_
     swapped_frames = np.flatnonzero(mask.any(axis=1)) + 41
     assert np.array_equal(swapped_frames, np.r_[41:46, 83:94])
     np.testing.assert_allclose(fixed, walk[41:101], atol=1e-12)
+
+
+def test_a_swap_from_the_second_frame_is_seen_beginning(walk):
+    """A take whose second frame already has its legs exchanged (Xia depressed_13_000,
+    seed 0, was left swapped: the toggle into the swap had no two frames before it)."""
+    legs = _legs()
+    frames = np.arange(1, 11)
+    raw = _swapped(walk[:48], frames, legs)
+    fixed, mask = undo_limb_swaps(raw, list(limb_groups(KINECT_V2)), RATE)
+    assert np.array_equal(np.flatnonzero(mask.any(axis=1)), frames)
+    np.testing.assert_allclose(fixed, walk[:48], atol=1e-12)

@@ -10,7 +10,8 @@ The test, per mirror pair of limbs ``(A, B)`` (joints and their mirror images,
 
 * each joint is predicted at constant velocity from the two frames before,
   ``p(t) = 2 x(t-1) - x(t-2)`` (a walking foot moves 10+ cm a frame; a running median
-  cannot follow it, a prediction can);
+  cannot follow it, a prediction can; the second frame, with one frame before it, at
+  ``x(0)``);
 * ``keep(t)`` = mean distance of A's and B's joints to their own predictions,
   ``cross(t)`` = the same with A and B exchanged; frame ``t`` *toggles* the labelling
   where ``cross < ratio * keep`` and ``keep > min_offset_m`` (the exchanged labelling
@@ -65,9 +66,11 @@ def undo_limb_swaps(
     for a, b in pairs:
         both = np.concatenate([a, b])
         mirrored = np.concatenate([b, a])
-        pred = 2.0 * x[1:-1, both] - x[:-2, both]  # predicts frames 2..T-1
-        keep = np.linalg.norm(x[2:, both] - pred, axis=2)
-        cross = np.linalg.norm(x[2:, mirrored] - pred, axis=2)
+        # predicts frames 1..T-1: frame 1 from frame 0 alone (no velocity yet), so a swap that
+        # begins on a take's second frame is seen beginning
+        pred = np.concatenate([x[:1, both], 2.0 * x[1:-1, both] - x[:-2, both]])
+        keep = np.linalg.norm(x[1:, both] - pred, axis=2)
+        cross = np.linalg.norm(x[1:, mirrored] - pred, axis=2)
         # joints seen in all three frames, both labellings; a frame is judged on at least half
         # of them (one joint the engine left out of a window's clean history must not hide
         # the toggle where a swap that began before the window ends)
@@ -77,7 +80,7 @@ def undo_limb_swaps(
         k = np.where(ok, np.where(seen, keep, 0.0).sum(axis=1) / np.maximum(n_seen, 1), 0.0)
         c = np.where(ok, np.where(seen, cross, 0.0).sum(axis=1) / np.maximum(n_seen, 1), np.inf)
         toggle = np.zeros(T, dtype=bool)
-        toggle[2:] = ok & (k > cfg.min_offset_m) & (c < cfg.ratio * k)
+        toggle[1:] = ok & (k > cfg.min_offset_m) & (c < cfg.ratio * k)
         if not toggle.any():
             continue
         swapped = (np.cumsum(toggle) % 2).astype(bool)
