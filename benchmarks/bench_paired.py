@@ -139,7 +139,7 @@ def _markdown(records: list[dict], bars: list[dict], info: dict, floor: list[dic
         f"{info['seconds']:.0f} s with {info['workers']} workers. Errors in mm; `x input` is the "
         "debiased mean / p95 relative to the raw sensor; `jitter/ref` the output's mean second "
         "difference over the reference's; `seam` the second difference on window hand-over frames "
-        "over the other frames; `<3 Hz mm` the mean of the debiased error's part below 3 Hz. "
+        "over the other frames within a hop of them; `<3 Hz mm` the mean of the debiased error's part below 3 Hz. "
         "Definitions: `streamfix/evaluation/paired.py`.",
         "",
         "```",

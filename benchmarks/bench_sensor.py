@@ -23,7 +23,7 @@ each method's seam is measured at its own schedule's window hand-overs:
   baseline" bar; the input is exact there): error on the flagged joint-frames no larger
   than ``median_savgol``'s there, i.e. a cleaner that questions inferred limbs may not
   damage right ones more than a plain smoother does;
-* seam ratio (jitter next to window hand-overs / elsewhere, pooled over all kinds)
+* seam ratio (jitter next to window hand-overs / within a hop of them, pooled over all kinds)
   at most 1.1.
 
 Usage: ``python3 benchmarks/bench_sensor.py [--seeds 3] [--workers 2] [--files F ...]``

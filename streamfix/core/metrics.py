@@ -27,8 +27,8 @@ import numpy as np
 
 from .robust_stats import nanmedian
 
-__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors", "seam_jitter", "seam_sums",
-           "inferred_bone_asymmetry"]
+__all__ = ["aje", "abe", "jitter", "bone_lengths", "bone_length_cv", "gap_mae", "joint_errors", "seam_jitter",
+           "seam_sums", "inferred_bone_asymmetry"]
 
 
 def _check_pair(pred: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

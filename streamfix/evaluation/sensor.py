@@ -237,7 +237,7 @@ def format_table(records: list[dict]) -> str:
         lines.append("")
     seam = {m: summarise([dict(r, kind="all") for r in records if r.get("protocol") == "sensor"])["all"][m]["seam_ratio"]
             for m in methods}
-    lines.append("seam ratio (jitter next to window hand-overs / elsewhere), all kinds")
+    lines.append("seam ratio (jitter next to window hand-overs / within a hop of them), all kinds")
     lines.append(" " * 9 + "".join(f"{m:>15}" for m in methods))
     lines.append(" " * 9 + "".join(f"{'-' if seam[m] is None else f'{seam[m]:.3f}':>15}" for m in methods))
     return "\n".join(lines)

@@ -105,7 +105,7 @@ class Body:
         self.count = 0  # frames in the timeline
         self.final_upto = 0  # next frame to finalise
         self.next_end = cfg.lookahead + 1  # end of the next window to schedule
-        self.phase = 0  # frames the window grid after the first window is shifted early by (spreads bodies over the hop)
+        self.phase = 0  # frames the window grid after the first window is shifted early by (spreads bodies)
         self.last_scheduled_end = 0
         self.last_processed_end = 0
         self.last_present = -1

@@ -15,7 +15,8 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
 * window ``k`` ends at ``e_k = L + 1 + k H`` (exclusive) and covers frames
   ``[max(0, e_k - W), e_k)``; while the body's first ``W`` frames arrive, windows also
   end every ``startup_hop`` frames between those (:func:`~streamfix.streaming.blending.next_window_end`:
-  the short first windows disagree most, and then share more frames); it is solved as soon as frame ``e_k - 1`` has arrived,
+  the short first windows disagree most, and then share more frames); it is solved as
+  soon as frame ``e_k - 1`` has arrived,
   warm-started from the previous window's solver state shifted by the hop
   (``state.shifted(e_k - e_{k-1})``) when both windows have the full length ``W``;
 * the solution of window ``k`` is blended into every not-yet-emitted frame it covers
@@ -539,7 +540,8 @@ class StreamEngine:
             return max(1, lvl1 // 2)
         return lvl1
 
-    def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False, hop_after: int | None = None) -> None:
+    def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False,
+                  hop_after: int | None = None) -> None:
         """Create the job for the window ending at ``end`` and solve/submit it; ``hop_after``:
         frames to the body's next window (None: the hop)."""
         W = self.cfg.window
@@ -585,7 +587,8 @@ class StreamEngine:
         those windows are short, so the time a body's windows may take per hop is the same)."""
         startup = self.hop / self.cfg.startup_hop if self.level == 0 else 1.0
         W = self.cfg.window
-        return max(1.0, float(sum(startup if b.count < W else 1.0 for st in self.streams.values() for b in st.bodies.values())))
+        bodies = (b for st in self.streams.values() for b in st.bodies.values())
+        return max(1.0, float(sum(startup if b.count < W else 1.0 for b in bodies)))
 
     def _degrade_check(self) -> None:
         """Overloaded when the worker cannot finish one window per body per hop.
