@@ -74,7 +74,11 @@ class SupportConfig:
     max_wild_fraction: float = 0.35  # leg samples > wild_m from a 5-frame median: above this, do nothing
     wild_m: float = 0.10
     axis_snap_cos: float = 0.85  # snap the up direction to a coordinate axis within ~32 deg
-    planted_smooth_s: float = 1.0  # span of the smoother over planted joints (0 = none)
+    # span of the smoother over planted joints (0 = none): a planted leg is a guess (anchored
+    # foot, knee by IK from the sensor's hip) with no detail of its own, only the hip's jitter,
+    # so it is smoothed over about a whole window; 1 s left UI-PRMD's lower body 6 % further
+    # from Vicon and jitterier (benchmarks/bench_paired.py)
+    planted_smooth_s: float = 2.5
 
 
 def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray | None, snap_cos: float = 0.85) -> np.ndarray:
