@@ -344,6 +344,10 @@ def test_config_rejects_inconsistent_window_hop_lookahead():
         EngineConfig(window=60, hop=5, lookahead=60)
     cfg = EngineConfig(rate_hz=30.0, lookahead_s=0.5)
     assert cfg.lookahead == 15 and cfg.hop <= 16
+    for bad in (0, 11):  # the start-up hop is 1..hop frames
+        with pytest.raises(ValueError, match="startup_hop must be in 1..hop = 1..10 frames"):
+            EngineConfig(rate_hz=30.0, startup_hop=bad)
+    assert EngineConfig(rate_hz=30.0, hop=1).startup_hop == 1
 
 
 def test_stalled_solver_and_a_departed_body_do_not_hold_the_stream(kinect):
