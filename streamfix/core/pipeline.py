@@ -38,7 +38,11 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    Real depth-sensor jitter is temporally correlated, which raises the ratio, and slow
    rehabilitation-style motion wants the longer window; the gate is soft (full
    smoothing at ``white_noise_ratio``, none at ``white_noise_ratio_max``, blended
-   between), so a window's noisy ratio does not flip it: gate and window were chosen
+   between), so a window's noisy ratio does not flip it. The blend spans where the two
+   kinds overlap: Kinect v1's correlated noise on UI-PRMD reaches up into it (a blend
+   ending lower left about a quarter of those windows smoothed only in part, and their
+   jitter in the output), exact mocap in short or slow windows reaches down into it
+   (smoothing that costs the paper protocol accuracy): gate and window were chosen
    against Vicon on UI-PRMD (``benchmarks/bench_paired.py``) with the paper protocol's
    bars checked alongside (``benchmarks/bench_accuracy.py``).
 4. **Solver for what is missing.** Joint-frames with no observation (gaps) are
@@ -116,8 +120,8 @@ class PipelineConfig:
     short_gap_s: float = 0.1  # every gap at most this long (s): local quadratic across it, no solver
     # stage 3: smoothing matched to the noise level and rate
     smooth_floor_m: float = 1e-4
-    white_noise_ratio: float = 1.8  # at or below: smooth fully
-    white_noise_ratio_max: float = 2.0  # at or above: do not smooth; blended in between
+    white_noise_ratio: float = 1.9  # at or below: smooth fully
+    white_noise_ratio_max: float = 2.3  # at or above: do not smooth; blended in between
     smooth_window_s: float = 0.7
     smooth_short_s: float | None = 0.2  # None: one span (smooth_window_s) for every joint
     smooth_bias_m: tuple[float, float] = (0.006, 0.015)
