@@ -269,3 +269,20 @@ def test_offline_fill_is_never_much_worse_than_linear(shared_data, take, joints,
     assert e < 1.5 * lin
     if lin > 0.05:  # the limb moved inside the gap: PCA's motion is kept
         assert e < 0.3 * lin
+
+
+def test_closed_blackouts_are_left_to_time():
+    """Whole frames lost with the joints seen on both sides go to the window pipeline's
+    spline, not the bridge; a blackout open at the window's end, or a joint also missing
+    where others are seen, stays the bridge's."""
+    from streamfix.streaming.bridging import closed_blackout_mask
+
+    obs = np.ones((60, 4), dtype=bool)
+    obs[20:35] = False         # closed blackout
+    obs[10:20, 1] = False      # joint 1 was already missing before it
+    obs[50:] = False           # open at the end
+    closed = closed_blackout_mask(obs)
+    assert closed[20:35][:, [0, 2, 3]].all() and not closed[:, 1].any()
+    assert not closed[50:].any() and not closed[~(np.arange(60) >= 20) | (np.arange(60) >= 35)].any()
+    long_ = long_missing_mask(obs)
+    assert not long_[20:35, 0].any() and long_[10:35, 1].all() and long_[50:].all()

@@ -653,11 +653,13 @@ def clean_window(
                 # linearly across the gap, so a filled run meets its neighbours without a jump
                 offset, _ = interpolate_linear(np.where(obs3, cleaned - filled, np.nan), obs)
                 filled = filled + np.nan_to_num(offset)
+        if cfg.use_solver:
             blackout = ~obs.any(axis=1)
             if blackout.any():
                 # a frame with no joint observed is a missing column of the low-rank model,
                 # which nothing in it can recover (the solve left such frames 0.2-0.5 m off);
-                # time can: each joint's cubic spline through its observed frames
+                # time can: each joint's cubic spline through its observed frames (also
+                # across short blackouts, where it beats the local quadratic on fast motion)
                 temporal, _ = interpolate_spline(base, obs)
                 filled[blackout] = temporal[blackout]
                 info["blackout_frames"] = int(blackout.sum())
