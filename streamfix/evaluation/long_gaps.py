@@ -32,7 +32,10 @@ whole-frame template, no boundary correction: Eq. (4) as printed), ``linear``,
 markers, donor-pattern fill from the most rigid partner, spline; samples a
 ``gapfill`` function leaves empty are interpolated linearly), ``alm`` (Yang et al.
 Algorithm 1 via :func:`streamfix.core.alm.solve` with the mask, on a window of
-``ALM_CONTEXT`` frames around each gap / blackout).
+``ALM_CONTEXT`` frames around each gap / blackout), ``streamfix`` (what ``streamfix clean``
+writes: the streaming engine on the file schedule, :data:`streamfix.evaluation.registry.ENGINE_SCHEDULES`,
+run on the frames from ``ENGINE_CONTEXT_S`` before the first gap to as long after the last:
+its windows are local, and farther frames would only add their cost).
 """
 from __future__ import annotations
 
@@ -56,7 +59,9 @@ BLACKOUT_LEVELS = (5, 10, 15, 20, 25, 30)
 BLACKOUT_WINDOW_S = 200 / 120.0
 BLACKOUT_WINDOWS = 6
 ALM_CONTEXT = 150
-METHODS = ("pca", "pca-ref", "pca-global", "linear", "spline", "gapfill-rbt", "gapfill-pattern", "gapfill-spline", "alm")
+METHODS = ("pca", "pca-ref", "pca-global", "linear", "spline", "gapfill-rbt", "gapfill-pattern", "gapfill-spline", "alm",
+           "streamfix")
+ENGINE_CONTEXT_S = 4.0
 
 
 def _rng(seed: int, protocol: str, key: str, name: str) -> np.random.Generator:
@@ -161,6 +166,22 @@ def _alm(x, obs, ctx):
     return out
 
 
+def _engine(x, obs, ctx):
+    from .registry import run_method
+
+    T_len = x.shape[0]
+    rows = np.flatnonzero((~obs).any(axis=1))
+    if not len(rows):
+        return x.copy()
+    pad = int(round(ENGINE_CONTEXT_S * ctx["rate_hz"]))
+    a, b = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, T_len)
+    out = np.where(obs[..., None], x, np.nan)
+    sk = ctx["skeleton"]
+    out[a:b] = run_method("streamfix", out[a:b], obs[a:b].astype(np.float64), sk.bone_array, ctx["rate_hz"],
+                          skeleton=sk)
+    return out
+
+
 _METHOD_FUNCS = {
     "pca": _pca(False),
     "pca-ref": _pca(False, True),
@@ -171,6 +192,7 @@ _METHOD_FUNCS = {
     "gapfill-pattern": _gapfill("pattern"),
     "gapfill-spline": _gapfill("spline"),
     "alm": _alm,
+    "streamfix": _engine,
 }
 
 
@@ -239,7 +261,8 @@ def run_long_gaps(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> 
     for k, (path, motion) in enumerate(motions):
         truth = motion.positions
         obs_all = motion.observed
-        ctx_base = {"window": max(int(round(BLACKOUT_WINDOW_S * motion.rate_hz)), 20)}
+        ctx_base = {"window": max(int(round(BLACKOUT_WINDOW_S * motion.rate_hz)), 20), "skeleton": motion.skeleton,
+                    "rate_hz": motion.rate_hz}
         if not obs_all.all():
             # real gaps: no ground truth, judge plausibility of the fill
             pairs = pg.estimate_rigid_pairs(truth, obs_all, k=pg_pairs(motion))
@@ -306,7 +329,7 @@ def run_blackout(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> l
                 # training: the take outside the test window, plus other takes
                 own = [t for t in (truth[:s], truth[s + m:]) if len(t) >= m] or [truth[:0]]
                 ctx = {"training": pg.TrainingSet(own), "training_ref": pg.TrainingSet(own + others),
-                       "window": m, "partners": None}
+                       "window": m, "partners": None, "skeleton": motion.skeleton, "rate_hz": motion.rate_hz}
                 for name in names:
                     pred, dt = _run_method(name, truth, obs, ctx)
                     per[name].append((eq17_mae(pred, truth, [(np.arange(a, a + L)[:, None],
