@@ -23,6 +23,9 @@ What counts as long (frames; ``T`` = window length)
 
 Where the fill comes from (first that applies, per sample)
 ----------------------------------------------------------
+0. ``time``: a blackout closed on both sides (the clean history counts as the near side),
+   on a skeleton the prior does not know: each joint's cubic spline through the history and
+   the window (:func:`closed_blackout_mask`);
 1. ``pca``: :class:`streamfix.core.pca_gapfill.PcaGapFiller` trained on the body's
    clean history (observed samples only; recovered ones are NaN), when the history
    has ``>= MIN_HISTORY_S`` (3 s) of frames where every joint to fill was observed;
@@ -184,22 +187,22 @@ def long_missing_mask(observed: np.ndarray, n_frames: int | None = None) -> np.n
     if black.any():
         brun = missing_run_lengths(~black)
         long_ |= ((brun >= BLACKOUT_MIN_FRAMES)[:, None]) & ~obs
-    return long_ & ~closed_blackout_mask(obs)
+    return long_
 
 
 def closed_blackout_mask(observed: np.ndarray) -> np.ndarray:
     """``(T, J)`` bool: missing samples whose joint's gap lies wholly in frames where no joint
     is observed (whole frames lost: the body dropped out of tracking, or frames dropped),
-    with the joint observed on both sides within the window.
+    with the joint observed on both sides.
 
-    Such gaps are left to time, not to a model: the window pipeline fills them with each
-    joint's cubic spline through the frames around them (``core/pipeline.py`` stage 4).
-    With nothing observed in those frames a model has only the same frames to go on, and
-    measured worse: on CMU marker takes (``eval --protocol blackout``) the PCA bridge left
-    blackouts 1.3-5x the spline's error. A blackout still open at the window's newest frames
-    stays the bridge's (the spline can only hold the last value there; on the Kinect v2
-    recordings serve's output was closer to the uninterrupted one with the model's
-    continuation), as does a gap that runs on where other joints are seen.
+    For a skeleton no learned prior knows (marker sets, BVH), the bridge fills these from
+    time alone (each joint's cubic spline through the clean history and the window, source
+    ``time``) before PCA: with nothing observed in those frames, PCA on the history left CMU
+    marker blackouts (``eval --protocol blackout``) 1.3-5x the spline's error. Where the
+    prior knows the skeleton its fill stays: on UI-PRMD (Kinect v1) 0.2-0.5 s blackouts in
+    mid-take, it ended closer to Vicon than the spline did. A blackout still open at the
+    window's newest frames stays the models' (a spline could only hold the last value), as
+    does a gap that runs on where other joints are seen.
     """
     obs = np.asarray(observed, dtype=bool)
     missing = ~obs
@@ -237,7 +240,8 @@ class BridgingWindowSolver:
     """Window solver: bridge long gaps (PCA on history, prior D(z*), hold), then ``base``.
 
     ``base``: the window solver to run afterwards (None = ``clean_window``).
-    ``sources``: order of the fill sources tried, from ``("pca", "prior")``.
+    ``sources``: the fill sources tried, from ``("time", "pca", "prior")`` (``time`` first
+    when given: closed whole-frame blackouts, :func:`closed_blackout_mask`).
     ``use_prior``: None = whenever a prior is shipped for the skeleton's joint count.
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
     :data:`HISTORY_S`).
@@ -250,7 +254,7 @@ class BridgingWindowSolver:
         self,
         base: Callable[..., Any] | None = None,
         *,
-        sources: tuple[str, ...] = ("pca", "prior"),
+        sources: tuple[str, ...] = ("time", "pca", "prior"),
         use_prior: bool | None = None,
         min_history_s: float = MIN_HISTORY_S,
         fill_confidence: float = FILL_CONFIDENCE,
@@ -269,9 +273,9 @@ class BridgingWindowSolver:
             from ..core.pipeline import clean_window
 
             base = clean_window
-        bad = [s for s in sources if s not in ("pca", "prior")]
+        bad = [s for s in sources if s not in ("time", "pca", "prior")]
         if bad:
-            raise ValueError(f"sources must be from ('pca', 'prior'), got {bad}")
+            raise ValueError(f"sources must be from ('time', 'pca', 'prior'), got {bad}")
         if prior_init not in ("off", "bridged", "always"):
             raise ValueError(f"prior_init must be 'off', 'bridged' or 'always', got {prior_init!r}")
         self.prior_init = prior_init
@@ -345,6 +349,23 @@ class BridgingWindowSolver:
         todo = ext_long[C:]
         if not todo.any():
             return out, done, counts
+        srcs = self.sources if sources is None else sources
+        closed = closed_blackout_mask(ext_obs)[C:] & todo
+        if closed.any() and "time" in srcs and not self.prior_ok(J, skeleton):
+            # whole frames lost with the joints seen on both sides (the history counts as
+            # the near side): each joint's cubic spline through the clean history and the
+            # window. Only where no learned prior knows the skeleton (marker sets, BVH):
+            # where one does, its fill was closer to the truth (see closed_blackout_mask)
+            from ..core.interpolate import interpolate_spline
+
+            temporal, _ = interpolate_spline(np.where(ext_obs[..., None], ext, np.nan), ext_obs)
+            use = closed & np.isfinite(temporal[C:]).all(axis=2)
+            out[use] = temporal[C:][use]
+            done |= use
+            counts["time"] = int(use.sum())
+            todo = todo & ~done
+            if not todo.any():
+                return out, done, counts
         short = ~ext_obs & ~ext_long
         if short.any():
             # short gaps are the solver's: give the sources a linear guess there (marked
@@ -357,7 +378,7 @@ class BridgingWindowSolver:
             ext = np.where(use_short[..., None], guess, ext)
             ext_obs = ext_obs | use_short
         limited = np.zeros_like(done)  # fills the excursion limit applies to (see excursion_sources)
-        for src in self.sources if sources is None else sources:
+        for src in srcs:
             left = todo & ~done
             if not left.any():
                 break

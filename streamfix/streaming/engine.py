@@ -71,7 +71,7 @@ first -- by PCA (Li et al.) trained on the body's own clean history (the last
 solvers with ``wants_history``) once 3 s of it exist, else by the learned prior's D(z*)
 (Kinect v2) -- and flagged ``recovered``. Other windows go to ``clean_window``
 unchanged. ``metrics()`` counts the bridged joint-frames by source
-(``joints_bridged_pca`` / ``_prior`` / ``_hold``) and sources that failed on a window
+(``joints_bridged_time`` / ``_pca`` / ``_prior`` / ``_hold``) and sources that failed on a window
 (``bridge_errors``; the next source is tried).
 
 Dropped sensor frames and sequence numbers
@@ -217,7 +217,8 @@ class StreamEngine:
                 "windows_scheduled", "windows_solved", "windows_skipped", "windows_abandoned",
                 "solver_errors", "solver_iterations", "solver_not_converged", "joints_recovered",
                 "gaps_not_filled", "degrade_events", "joints_live_fallback",
-                "joints_bridged_pca", "joints_bridged_prior", "joints_bridged_hold", "bridge_errors",
+                "joints_bridged_time", "joints_bridged_pca", "joints_bridged_prior", "joints_bridged_hold",
+                "bridge_errors",
             )
         }
         self.live_hist = Histogram()
