@@ -121,12 +121,14 @@ def accuracy(methods: list[str]) -> tuple[bool, list[dict]]:
 def blackout() -> tuple[bool, list[dict]]:
     paths = [DATA / "c3d" / "85_02.c3d", DATA / "c3d" / "135_02.c3d"]
     levels = (5, 10, 15, 20, 25, 30)
-    recs = run_blackout(paths, levels=list(levels), methods=["pca", "linear", "spline", "streamfix"], seed=0)
+    recs = run_blackout(paths, levels=list(levels), methods=["pca", "linear", "spline", "streamfix", "streamfix_serve"],
+                       seed=0)
     ok = True
     print("\nblackouts (whole frames, middle of 200-frame windows): MAE (Eq. 18) in mm; bars: pca < 20 mm at 10 %,"
           " pca and streamfix (what `streamfix clean` writes) <= cubic spline at every level (issue 8; 0.05 mm of"
-          " slack for ties)")
-    print(f"  {'take':<7} {'level':>6} {'pca':>9} {'linear':>9} {'spline':>9} {'streamfix':>10}  bars (pca, streamfix)")
+          " slack for ties); streamfix_serve (serve's clean topic) reported beside it")
+    print(f"  {'take':<7} {'level':>6} {'pca':>9} {'linear':>9} {'spline':>9} {'streamfix':>10} {'_serve':>8}"
+          "  bars (pca, streamfix)")
     for path in paths:
         for level in levels:
             row = {r["method"]: r["gap_mae_m"] * 1000 for r in recs
@@ -138,7 +140,7 @@ def blackout() -> tuple[bool, list[dict]]:
             ok &= good_pca and good_engine
             bars = ", ".join("ok" if g else "MISSED" for g in (good_pca, good_engine))
             print(f"  {path.stem:<7} {level:>5}% {row['pca']:9.2f} {row['linear']:9.2f} {row['spline']:9.2f}"
-                  f" {row['streamfix']:10.2f}  {bars}")
+                  f" {row['streamfix']:10.2f} {row['streamfix_serve']:8.2f}  {bars}")
     return ok, recs
 
 

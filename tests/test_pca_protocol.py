@@ -45,11 +45,23 @@ def test_blackout_records(shared_data):
 
 
 def test_engine_fills_marker_blackouts_close_to_the_spline(shared_data):
-    """What ``streamfix clean`` writes across whole-frame blackouts of real markers (the
-    protocol's ``streamfix`` method): within 1.25x the cubic spline's error. The PCA bridge
-    used to fill them, at 2x the spline's error at this level (issue 8's blackout bar asks
-    for at most 1x)."""
-    path = shared_data / "c3d" / "85_02.c3d"
-    recs = run_blackout([path], levels=[15], seed=0, methods=["spline", "streamfix"])
-    mae = {r["method"]: r["gap_mae_m"] for r in recs}
-    assert mae["streamfix"] <= 1.25 * mae["spline"], mae
+    """The streaming engine alone (what ``serve`` runs; ``clean`` runs the gap filler first
+    on marker files) across whole-frame blackouts of real markers: within 1.1x the cubic
+    spline's error. Its PCA bridge used to fill them, at 2x the spline's error here."""
+    from streamfix.core.interpolate import interpolate_spline
+    from streamfix.evaluation.registry import load_motion, run_method
+
+    m = load_motion(shared_data / "c3d" / "85_02.c3d")
+    x, rate, sk = m.positions, m.rate_hz, m.skeleton
+    L = 30  # 0.25 s, in the middle of the protocol's 200-frame windows
+    err_engine, err_spline = [], []
+    for s in np.linspace(0, m.n_frames - 200, 4).astype(int):
+        a = s + (200 - L) // 2
+        obs = np.ones(x.shape[:2], dtype=bool)
+        obs[a:a + L] = False
+        xin = np.where(obs[..., None], x, np.nan)
+        y = run_method("streamfix", xin, obs.astype(float), sk.bone_array, rate, skeleton=sk)
+        err_engine.append(np.linalg.norm(y[a:a + L] - x[a:a + L], axis=2).mean())
+        sp = interpolate_spline(xin, obs)[0]
+        err_spline.append(np.linalg.norm(sp[a:a + L] - x[a:a + L], axis=2).mean())
+    assert np.mean(err_engine) <= 1.1 * np.mean(err_spline), (err_engine, err_spline)

@@ -33,9 +33,11 @@ markers, donor-pattern fill from the most rigid partner, spline; samples a
 ``gapfill`` function leaves empty are interpolated linearly), ``alm`` (Yang et al.
 Algorithm 1 via :func:`streamfix.core.alm.solve` with the mask, on a window of
 ``ALM_CONTEXT`` frames around each gap / blackout), ``streamfix`` (what ``streamfix clean``
-writes: the streaming engine on the file schedule, :data:`streamfix.evaluation.registry.ENGINE_SCHEDULES`,
-run on the frames from ``ENGINE_CONTEXT_S`` before the first gap to as long after the last:
-its windows are local, and farther frames would only add their cost).
+writes: :func:`streamfix.cleaning.clean_recording`, the gap filler where it applies, then the
+streaming engine on the file schedule) and ``streamfix_serve`` (the engine on ``serve``'s
+schedule: what its ``clean`` topic publishes), each run on the frames from
+``ENGINE_CONTEXT_S`` before the first gap to as long after the last (the engine's windows are
+local; farther frames would only add their cost).
 """
 from __future__ import annotations
 
@@ -60,7 +62,7 @@ BLACKOUT_WINDOW_S = 200 / 120.0
 BLACKOUT_WINDOWS = 6
 ALM_CONTEXT = 150
 METHODS = ("pca", "pca-ref", "pca-global", "linear", "spline", "gapfill-rbt", "gapfill-pattern", "gapfill-spline", "alm",
-           "streamfix")
+           "streamfix", "streamfix_serve")
 ENGINE_CONTEXT_S = 4.0
 
 
@@ -166,20 +168,29 @@ def _alm(x, obs, ctx):
     return out
 
 
-def _engine(x, obs, ctx):
-    from .registry import run_method
+def _engine(serve: bool):
+    def run(x, obs, ctx):
+        T_len = x.shape[0]
+        rows = np.flatnonzero((~obs).any(axis=1))
+        out = np.where(obs[..., None], x, np.nan)
+        if not len(rows):
+            return out
+        pad = int(round(ENGINE_CONTEXT_S * ctx["rate_hz"]))
+        a, b = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, T_len)
+        sk, rate = ctx["skeleton"], float(ctx["rate_hz"])
+        if serve:
+            from .registry import run_method
 
-    T_len = x.shape[0]
-    rows = np.flatnonzero((~obs).any(axis=1))
-    if not len(rows):
-        return x.copy()
-    pad = int(round(ENGINE_CONTEXT_S * ctx["rate_hz"]))
-    a, b = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, T_len)
-    out = np.where(obs[..., None], x, np.nan)
-    sk = ctx["skeleton"]
-    out[a:b] = run_method("streamfix", out[a:b], obs[a:b].astype(np.float64), sk.bone_array, ctx["rate_hz"],
-                          skeleton=sk)
-    return out
+            out[a:b] = run_method("streamfix_serve", out[a:b], obs[a:b].astype(np.float64), sk.bone_array, rate,
+                                  skeleton=sk)
+        else:
+            from ..cleaning import clean_recording
+            from ..motion import Motion
+
+            seg = Motion(out[a:b], obs[a:b].astype(np.float64), np.arange(b - a) / rate, rate, sk)
+            out[a:b] = clean_recording(seg).motion.positions
+        return out
+    return run
 
 
 _METHOD_FUNCS = {
@@ -192,7 +203,8 @@ _METHOD_FUNCS = {
     "gapfill-pattern": _gapfill("pattern"),
     "gapfill-spline": _gapfill("spline"),
     "alm": _alm,
-    "streamfix": _engine,
+    "streamfix": _engine(serve=False),
+    "streamfix_serve": _engine(serve=True),
 }
 
 
