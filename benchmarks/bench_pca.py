@@ -15,7 +15,7 @@ and the 1/2/3/8-gap rows): ``pca <= 0.5 * linear``, ``pca < spline``, ``pca <``
 every ``gapfill`` method. Rows where a method beats ``pca`` are marked.
 Blackouts of 5-30 % of a 200-frame window: ``pca`` MAE < 20 mm at 10 % on both takes,
 and at or below the cubic spline's at every level; so must ``streamfix``, what ``streamfix
-clean`` writes (the engine, :mod:`streamfix.evaluation.long_gaps`), issue 8's bar.
+clean`` writes (:mod:`streamfix.evaluation.long_gaps`), issue 8's bar.
 03_rolling.c3d (23 % real gaps): >= 95 % of filled samples keep their rigid marker
 pairs inside the observed distance range.
 

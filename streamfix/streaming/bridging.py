@@ -205,23 +205,14 @@ def closed_blackout_mask(observed: np.ndarray) -> np.ndarray:
     does a gap that runs on where other joints are seen.
     """
     obs = np.asarray(observed, dtype=bool)
-    missing = ~obs
     empty = ~obs.any(axis=1)
     if not empty.any():
         return np.zeros_like(obs)
-    # label every missing run of every joint (column-major, so runs never span joints)
-    m = missing.T.ravel()
-    start = m & ~np.concatenate([[False], m[:-1]])
-    start[:: obs.shape[0]] = m[:: obs.shape[0]]
-    label = np.cumsum(start) * m
-    partial = (missing & ~empty[:, None]).T.ravel()  # missing while other joints are seen
-    n = int(label.max()) + 1
-    edge = np.zeros(obs.shape, dtype=bool)
-    edge[[0, -1]] = True
-    closed = np.bincount(label, weights=partial, minlength=n) == 0  # wholly in empty frames
-    closed &= np.bincount(label, weights=(missing & edge).T.ravel(), minlength=n) == 0  # not at an end
-    closed[0] = False  # label 0: observed samples
-    return closed[label].reshape(obs.shape[1], obs.shape[0]).T
+    # a joint's gap is the blackout itself when the two runs are equally long (it contains it)
+    same_run = missing_run_lengths(obs) == missing_run_lengths(~empty[:, None])
+    seen_before = np.logical_or.accumulate(obs, axis=0)
+    seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
+    return empty[:, None] & same_run & seen_before & seen_after
 
 
 def _with_recovered(res: Any, mask: np.ndarray, bridged: dict | None = None) -> WindowOutput:
