@@ -98,7 +98,8 @@ def interpolate_spline(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Cubic-spline (not-a-knot) interpolation across interior gaps; edges hold nearest.
 
-    One spline per joint through all its observed frames (3 coordinates at once);
+    One spline per set of joints observed on the same frames (3 coordinates at once; a
+    whole-frame blackout gives every joint the same pattern, so one call serves them all);
     joints with fewer than 4 observations fall back to linear interpolation.
     """
     x = np.asarray(positions, dtype=np.float64)
@@ -107,11 +108,21 @@ def interpolate_spline(
     n = x.shape[0]
     t = np.arange(n, dtype=np.float64)
     out = lin.copy()
-    for j in np.flatnonzero(filled.any(axis=0) & (obs.sum(axis=0) >= 4)):  # joints with gaps only
-        ts = t[obs[:, j]]
-        cs = CubicSpline(ts, x[obs[:, j], j], axis=0, bc_type="not-a-knot")
-        inside = filled[:, j] & (t > ts[0]) & (t < ts[-1])
-        out[inside, j] = cs(t[inside])
+    joints = np.flatnonzero(filled.any(axis=0) & (obs.sum(axis=0) >= 4))  # joints with gaps only
+    if len(joints) == 0:
+        return out, filled
+    columns = obs[:, joints]
+    if (columns == columns[:, :1]).all():  # one pattern (a blackout, or one joint): skip the grouping
+        groups = [(columns[:, 0], joints)]
+    else:
+        keys = np.packbits(columns, axis=0).T.copy().view(np.dtype((np.void, (n + 7) // 8))).ravel()
+        _, first, group = np.unique(keys, return_index=True, return_inverse=True)
+        groups = [(columns[:, i], joints[group == g]) for g, i in enumerate(first)]
+    for pattern, members in groups:
+        ts = t[pattern]
+        cs = CubicSpline(ts, x[pattern][:, members], axis=0, bc_type="not-a-knot")
+        inside = ~pattern & (t > ts[0]) & (t < ts[-1])
+        out[np.ix_(inside, members)] = cs(t[inside])
     return out, filled
 
 
