@@ -176,6 +176,33 @@ def test_spline_interpolation_exact_for_cubic():
     assert np.abs(yl - x).max() > 1e-3
 
 
+def test_spline_groups_equal_one_spline_per_joint():
+    # joints observed on the same frames share one spline (a blackout: all of them); the
+    # result must be each joint's own spline through its observed frames, whatever the mix
+    from scipy.interpolate import CubicSpline
+
+    rng = np.random.default_rng(5)
+    for case in range(12):
+        T, J = int(rng.integers(8, 150)), int(rng.integers(1, 26))
+        x = np.cumsum(rng.normal(size=(T, J, 3)), axis=0)
+        obs = rng.random((T, J)) > rng.uniform(0.05, 0.5)
+        if case % 3 == 0:
+            obs[:] = True
+            obs[T // 3:T // 3 + 4] = False  # a whole-frame blackout
+        if case % 3 == 1:
+            obs[:, : J // 2 + 1] = obs[:, :1]  # half the joints share a pattern
+        obs[:2, 0] = False  # a leading gap holds the nearest sample
+        got, filled = interpolate_spline(x, obs)
+        ref, _ = interpolate_linear(x, obs)
+        t = np.arange(T, dtype=np.float64)
+        for j in np.flatnonzero(filled.any(axis=0) & (obs.sum(axis=0) >= 4)):
+            ts = t[obs[:, j]]
+            inside = filled[:, j] & (t > ts[0]) & (t < ts[-1])
+            ref[inside, j] = CubicSpline(ts, x[obs[:, j], j], axis=0)(t[inside])
+        assert np.array_equal(np.isnan(got), np.isnan(ref)), case
+        assert np.allclose(got, ref, atol=1e-9, equal_nan=True), case
+
+
 def test_running_median_matches_nanmedian_of_each_shrunken_window():
     # the sort-based median must give np.nanmedian's value for every missing pattern:
     # odd and even observed counts, all-missing windows (NaN), shrunken edge windows

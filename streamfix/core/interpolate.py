@@ -112,13 +112,11 @@ def interpolate_spline(
     if len(joints) == 0:
         return out, filled
     columns = obs[:, joints]
-    if (columns == columns[:, :1]).all():  # one pattern (a blackout, or one joint): skip the grouping
-        groups = [(columns[:, 0], joints)]
-    else:
-        keys = np.packbits(columns, axis=0).T.copy().view(np.dtype((np.void, (n + 7) // 8))).ravel()
-        _, first, group = np.unique(keys, return_index=True, return_inverse=True)
-        groups = [(columns[:, i], joints[group == g]) for g, i in enumerate(first)]
-    for pattern, members in groups:
+    # each joint's observation pattern as one byte string: equal patterns share a spline
+    keys = np.packbits(columns, axis=0).T.copy().view(np.dtype((np.void, (n + 7) // 8))).ravel()
+    _, first, group = np.unique(keys, return_index=True, return_inverse=True)
+    for g, i in enumerate(first):
+        pattern, members = columns[:, i], joints[group == g]
         ts = t[pattern]
         cs = CubicSpline(ts, x[pattern][:, members], axis=0, bc_type="not-a-knot")
         inside = ~pattern & (t > ts[0]) & (t < ts[-1])
