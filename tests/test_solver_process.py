@@ -39,7 +39,7 @@ def _wait_dead(pid: int, timeout: float = 5.0) -> None:
             with open(f"/proc/{pid}/stat") as f:
                 if f.read().split(") ", 1)[1].startswith("Z"):
                     return  # a zombie: dead, not yet reaped by its parent (the forkserver)
-        except FileNotFoundError:
+        except (FileNotFoundError, ProcessLookupError):  # gone, or reaped between open and read
             return
         time.sleep(0.01)
     raise AssertionError(f"process {pid} still alive after {timeout} s")
