@@ -78,3 +78,44 @@ def test_clean_bvh_to_recording_and_bad_input(shared_data, tmp_path):
     proc = subprocess.run([sys.executable, "-m", "streamfix", "clean", str(bad), str(tmp_path / "o.csv")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 1 and "bad.csv" in proc.stderr
+
+
+def _failing_solver(every: int):
+    """A window solver that raises like a broken installation on every ``every``-th window
+    and otherwise returns its input (the engine's clean output is then the input)."""
+    from streamfix.streaming.engine import WindowOutput
+
+    calls = [0]
+
+    def solve(positions, confidence, bones, lengths, rate_hz, **kwargs):
+        calls[0] += 1
+        if calls[0] % every == 0:
+            raise ModuleNotFoundError("No module named 'pywt'")
+        return WindowOutput(positions.copy(), np.zeros(positions.shape[:2], dtype=bool), None, 1, True)
+
+    return solve
+
+
+def test_clean_fails_loudly_when_no_window_solves(shared_data, tmp_path, capsys, monkeypatch):
+    """A broken solver must not pass the live path's output off as a cleaning."""
+    import streamfix.streaming.engine as engine
+
+    monkeypatch.setattr(engine, "default_window_solver", lambda: _failing_solver(1))
+    out = tmp_path / "clean.csv"
+    assert main(["clean", str(shared_data / "kinect_v2" / "Ges01_wavehand.csv"), str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "every window solve failed" in err and "No module named 'pywt'" in err
+    assert not out.exists()
+
+
+def test_clean_reports_windows_that_failed_and_keeps_every_frame(shared_data, tmp_path, capsys, monkeypatch):
+    import streamfix.streaming.engine as engine
+
+    monkeypatch.setattr(engine, "default_window_solver", lambda: _failing_solver(3))
+    src = shared_data / "kinect_v2" / "Ges01_wavehand.csv"
+    out = tmp_path / "clean.csv"
+    assert main(["clean", str(src), str(out), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "window(s) failed to solve" in err and "No module named 'pywt'" in err
+    a, b = read_motion(src), read_motion(out)
+    assert b.n_frames == a.n_frames and np.isfinite(b.positions).all()

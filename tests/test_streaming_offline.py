@@ -135,3 +135,21 @@ def test_file_schedule_solves_half_the_windows_and_keeps_its_settings_consistent
     _, on_files = clean_motion(kinect, cfg)
     _, on_serve = clean_motion(kinect, EngineConfig(rate_hz=kinect.rate_hz))
     assert on_files["windows_solved"] * 2 <= on_serve["windows_solved"] + 2
+
+
+def test_clean_motion_refuses_when_every_window_fails(kinect):
+    from streamfix.streaming.offline import WindowSolverError
+
+    def broken(positions, confidence, bones, lengths, rate_hz, **kwargs):
+        raise ImportError("No module named 'pywt'")
+
+    motion = kinect.slice(0, 90)
+    engine = StreamEngine(motion.skeleton, EngineConfig(rate_hz=motion.rate_hz), broken)
+    for frame in motion_frames(motion):
+        engine.push(frame)
+    engine.flush()
+    m = engine.metrics()
+    assert m["solver_errors"] > 0 and m["windows_solved"] == 0
+    assert m["first_solver_error"] == "ImportError: No module named 'pywt'"
+    with pytest.raises(WindowSolverError, match="every window solve failed.*pywt"):
+        clean_motion(motion, window_solver=broken)

@@ -122,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io import WRITE_FORMATS, check_writable, read_motion, write_motion
     from ..streaming.config import schedule_config
     from ..cleaning import clean_recording
+    from ..streaming.offline import WindowSolverError
     from .outputs import check_output
 
     try:  # before any solving: a bad output must not cost the whole run
@@ -159,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = clean_recording(motion, config, gapfill=not args.no_gapfill, training=getattr(args, "training", None),
                                  keep_filled=args.keep_filled, progress=progress)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, WindowSolverError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 1
     finally:
@@ -173,6 +174,9 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"streamfix clean: cannot write {args.output}: {exc}", file=sys.stderr)
         return 1
+    if metrics.get("solver_errors", 0):  # a partly failed cleaning is said even with --quiet
+        print(f"streamfix clean: warning: {metrics['solver_errors']} window(s) failed to solve "
+              f"(first: {metrics.get('first_solver_error')})", file=sys.stderr)
     if not args.quiet:
         print(_summary(args.input, source, cleaned, metrics, config, notes, gapfilled))
     return 0 if cleaned.n_frames >= n_frames_in else 1

@@ -105,8 +105,11 @@ the hop, 3 = quarter iterations and the largest hop (``max_hop``). It recovers a
 after ``recover_after`` consecutive healthy windows. When more than
 ``max_pending_windows`` windows are queued a new window is skipped; when a frame
 has waited ``max_clean_delay_s`` beyond its lookahead for a stalled window, that
-window is abandoned. Frames no solved window covers fall back to their ``live``
-value (flagged recovered where the live path recovered them). Input is never
+window is abandoned. A window whose solver raises is counted (``solver_errors``; the
+first message is ``metrics()['first_solver_error']``: offline cleaning refuses a recording
+whose every window failed, see :func:`streamfix.streaming.offline.clean_motion`). Frames
+no solved window covers fall back to their ``live`` value (flagged recovered where the
+live path recovered them). Input is never
 blocked or dropped; every input frame still appears once on ``clean``.
 :meth:`StreamEngine.metrics` reports the level, hop, iterations and counters.
 """
@@ -224,6 +227,7 @@ class StreamEngine:
         self.live_hist = Histogram()
         self.solve_hist = Histogram()
         self._last_iterations = 0
+        self._first_solver_error: str | None = None  # what the first failed window raised
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._inflight = 0  # submitted, not finished (threaded)
@@ -357,6 +361,7 @@ class StreamEngine:
             hop=self.hop,
             max_iterations=self._iterations(),
             last_iterations=self._last_iterations,
+            first_solver_error=self._first_solver_error,
             window=self.cfg.window,
             lookahead_frames=self.cfg.lookahead,
             lookahead_s=self.cfg.latency_s,
@@ -729,6 +734,8 @@ class StreamEngine:
                 self.solve_hist.observe(job.solve_s)
                 if job.error is not None:
                     self.counters["solver_errors"] += 1
+                    if self._first_solver_error is None:
+                        self._first_solver_error = job.error
                     continue
                 self.counters["windows_solved"] += 1
                 self.counters["solver_iterations"] += job.n_iter

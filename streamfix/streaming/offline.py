@@ -20,7 +20,12 @@ from ..frames import BodyFrame, SkeletonFrame
 from ..motion import Motion
 from .engine import EngineConfig, StreamEngine, WindowSolver
 
-__all__ = ["clean_motion", "motion_frames"]
+__all__ = ["WindowSolverError", "clean_motion", "motion_frames"]
+
+
+class WindowSolverError(RuntimeError):
+    """Every window of a recording failed to solve (a broken installation, a solver bug):
+    the engine's ``clean`` output would be its live path's, not a cleaning."""
 
 
 def motion_frames(motion: Motion, stream_id: str = "offline", body_id: int = 0, seq0: int = 0):
@@ -66,6 +71,9 @@ def clean_motion(
     ``progress(done, total)`` is called now and then. Returns ``(cleaned motion,
     engine metrics)``; the cleaned motion's ``recovered`` marks recovered joints.
     ``topic="live"`` collects the causal ``live`` output instead of ``clean``.
+    Raises :class:`WindowSolverError` when windows were solved and every one failed;
+    when only some failed, ``metrics['solver_errors']`` counts them (their frames hold
+    the live path's values) and ``metrics['first_solver_error']`` says why.
     """
     if topic not in ("clean", "live"):
         raise ValueError(f"topic must be 'clean' or 'live', got {topic!r}")
@@ -80,6 +88,10 @@ def clean_motion(
         # run again with it, so the output is exactly the engine's (rare: failed windows)
         cfg = replace(cfg, live_output=True)
         clean, metrics = _run_engine(motion, cfg, window_solver, topic, None)
+    if metrics.get("solver_errors", 0) and not metrics.get("windows_solved", 0):
+        raise WindowSolverError(
+            f"every window solve failed ({metrics['solver_errors']} windows); the first raised "
+            f"{metrics.get('first_solver_error')}")
     frames = [f for f in clean if keep_filled or not f.filled]
     J = motion.n_joints
     pos = np.full((len(frames), J, 3), np.nan)
