@@ -73,6 +73,17 @@ def run(engine, frames):
     return out, per_push
 
 
+def run_threaded(engine, frames):
+    """The clean frames of a threaded engine fed ``frames`` (polling after each push), closed."""
+    out = []
+    for f in frames:
+        out += engine.push(f)
+        out += engine.poll()
+    out += engine.flush()
+    engine.close()
+    return split(out)[1]
+
+
 def split(out):
     return [f for k, f in out if k == "live"], [f for k, f in out if k == "clean"]
 
@@ -325,14 +336,7 @@ def test_threaded_push_never_blocks_on_a_stalled_solver_and_degrades(kinect):
 def test_threaded_equals_synchronous_when_keeping_up(kinect):
     cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
     sync = split(run(StreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))[0])[1]
-    engine = ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver)
-    out = []
-    for f in frames_of(kinect, uniform=True):
-        out += engine.push(f)
-        out += engine.poll()
-    out += engine.flush()
-    engine.close()
-    threaded = split(out)[1]
+    threaded = run_threaded(ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))
     assert [f.seq for f in threaded] == [f.seq for f in sync]
     assert np.array_equal(body_array(threaded), body_array(sync))
 
@@ -456,3 +460,66 @@ def test_start_up_windows_are_owed_not_an_overload(kinect):
     for i in range(30, 70):
         push(i)
     assert engine._windows_due() == 3
+
+
+# ----------------------------------------------------------------------------- output smoothing
+def noisy_identity(share):
+    """The identity solver that reports its window as ``share`` sensor noise."""
+    from streamfix.streaming.solver_api import NOISE_SHARE_KEY
+
+    def solve(positions, confidence, bones, bone_lengths, rate_hz, config=None, state=None, init=None):
+        return WindowOutput(positions.copy(), ~(confidence > 0), None, 1, True, {NOISE_SHARE_KEY: share})
+
+    return solve
+
+
+@pytest.mark.parametrize("share", [1.0, 0.5])
+def test_output_smoothing_is_the_twiced_binomial_of_noisy_windows(kinect, share):
+    """Windows that report sensor noise get the kernel on their blended output: with the
+    identity solver, every frame with two blended neighbours each side is the kernel over
+    the input (the future neighbours are the newest window's values: no extra latency),
+    a body's first and last two frames keep theirs."""
+    from streamfix.core.filters import twiced_binomial_taps
+
+    cfg = EngineConfig(rate_hz=kinect.rate_hz)
+    assert cfg.output_smooth_frames == 1
+    out, _ = run(StreamEngine(KINECT_V2, cfg, noisy_identity(share)), frames_of(kinect, uniform=True))
+    got = body_array(split(out)[1])
+    x = kinect.positions
+    assert np.isfinite(x).all()
+    taps = twiced_binomial_taps(1)
+    T = len(x)
+    smooth = sum(t * x[k:T - 4 + k] for k, t in enumerate(taps))
+    expect = x.copy()
+    expect[2:T - 2] = share * smooth + (1.0 - share) * x[2:T - 2]
+    np.testing.assert_allclose(got, expect, rtol=0, atol=1e-12)
+    assert np.abs(got - x).max() > 1e-4  # it smoothed
+
+
+def test_output_smoothing_threaded_equals_synchronous(kinect):
+    from streamfix.streaming.solver_api import NOISE_SHARE_KEY
+
+    def noisy_savgol(*args, **kwargs):
+        res = savgol_solver(*args, **kwargs)
+        res.info = {NOISE_SHARE_KEY: 1.0}
+        return res
+
+    cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
+    sync = split(run(StreamEngine(KINECT_V2, cfg, noisy_savgol), frames_of(kinect, uniform=True))[0])[1]
+    plain = split(run(StreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))[0])[1]
+    assert np.abs(body_array(sync) - body_array(plain)).max() > 1e-5
+    threaded = run_threaded(ThreadedStreamEngine(KINECT_V2, cfg, noisy_savgol), frames_of(kinect, uniform=True))
+    assert np.array_equal(body_array(threaded), body_array(sync))
+
+
+def test_twiced_binomial_keeps_quadratic_motion_and_removes_frame_jitter():
+    from streamfix.core.filters import binomial_taps, twiced_binomial_taps
+
+    for h in (1, 2, 4):
+        taps = twiced_binomial_taps(h)
+        k = np.arange(len(taps)) - len(taps) // 2
+        assert len(taps) == 4 * h + 1 and np.allclose(taps, taps[::-1])
+        assert abs(taps.sum() - 1.0) < 1e-12 and abs((taps * k).sum()) < 1e-12
+        assert abs((taps * k ** 2).sum()) < 1e-12  # a quadratic passes unchanged
+        assert abs((taps * (-1.0) ** k).sum()) < 1e-12  # alternating jitter is removed
+        assert abs((binomial_taps(h) * (np.arange(2 * h + 1) - h) ** 2).sum() - h / 2) < 1e-12

@@ -623,6 +623,9 @@ def clean_window(
     hi_ratio = max(cfg.white_noise_ratio_max, cfg.white_noise_ratio)
     z = 1.0 if ratio <= cfg.white_noise_ratio else float(np.clip((hi_ratio - ratio) / max(hi_ratio - cfg.white_noise_ratio, 1e-12), 0.0, 1.0))
     share = z * z * (3.0 - 2.0 * z)
+    # how much of this window is sensor noise: the streaming engine smooths that share of
+    # its blended output (streamfix.streaming.solver_api.NOISE_SHARE_KEY)
+    info["sensor_noise_share"] = share if s_large > cfg.smooth_floor_m else 0.0
     if s_large > cfg.smooth_floor_m and share > 0:
         sm, hs = motion_adaptive_smooth(yc, wc, rate_hz, cfg)
         cleaned = np.where(obs3, share * sm.reshape(x.shape) + (1.0 - share) * cleaned, cleaned)

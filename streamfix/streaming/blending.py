@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HANDOVER_S", "crossfade_frames", "handover_frames", "handover_weights", "next_window_end", "window_ends"]
+__all__ = ["HANDOVER_S", "OUTPUT_SMOOTH_S", "crossfade_frames", "handover_frames", "handover_weights",
+           "next_window_end", "smooth_blended", "window_ends"]
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
+OUTPUT_SMOOTH_S = 1.0 / 30.0  # half-width of the blended output's smoothing (1 frame at 30 Hz); see smooth_blended
 
 
 def next_window_end(end: int, window: int, hop: int, startup_hop: int, origin: int) -> int:
@@ -115,3 +117,31 @@ def handover_frames(n_frames: int, lookahead: int, hop: int, crossfade: int, win
     out[switch - 1] = True
     return out
 
+
+
+def smooth_blended(values: np.ndarray, usable: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """The middle frames of ``values`` ``(n + 2h, J, 3)`` m smoothed by the symmetric
+    kernel ``taps`` (``2 h + 1`` weights summing to 1).
+
+    Why: each window's estimate is smooth, but the output is a crossfade of several
+    windows' estimates, each near its newest edge on ``serve``'s schedule, plus the bone
+    projection's per-frame corrections; what that leaves is frame-to-frame jitter. The
+    engine uses :func:`streamfix.core.filters.twiced_binomial_taps` (zero gain at the
+    Nyquist frequency, exact for quadratic motion, no lag). ``usable`` ``(n + 2h, J)``:
+    frames and joints that hold a value; a middle frame whose taps are not all usable
+    keeps its value. Returns ``(n, J, 3)``.
+    """
+    taps = np.asarray(taps, dtype=np.float64)
+    h = len(taps) // 2
+    x = np.asarray(values, dtype=np.float64)
+    if h < 1 or x.shape[0] <= 2 * h:
+        return x[h:x.shape[0] - h].copy()
+    ok = np.asarray(usable, dtype=bool)
+    n = x.shape[0] - 2 * h
+    xs = np.where(ok[..., None], x, 0.0)
+    out = np.zeros((n,) + x.shape[1:])
+    complete = np.ones((n,) + ok.shape[1:], dtype=bool)
+    for k, t in enumerate(taps):  # 2h + 1 shifted slices: one array op each
+        out += t * xs[k:k + n]
+        complete &= ok[k:k + n]
+    return np.where(complete[..., None], out, x[h:h + n])

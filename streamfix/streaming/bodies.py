@@ -49,7 +49,7 @@ class Job:
     __slots__ = (
         "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
         "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final", "history",
-        "hop_before", "hop_after",
+        "hop_before", "hop_after", "noise_share",
     )
 
     def __init__(self, body: "Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
@@ -66,6 +66,7 @@ class Job:
         self.error: str | None = None
         self.final = final
         self.history: np.ndarray | None = None
+        self.noise_share = 0.0  # how much of the window's output the engine smooths (solver's info)
         self.hop_before = self.hop_after = 0  # frames from the previous window's end / to the next one's (blend weights)
 
 
@@ -97,6 +98,9 @@ class Body:
         self.mean = np.zeros((cap, J, 3))
         self.den = np.zeros((cap, J))
         self.recw = np.zeros((cap, J))
+        self.smooth = np.zeros((cap, J, 3))  # the blended mean smoothed over time (engine._smooth_output)
+        self.smooth_for = np.full(cap, -1, dtype=np.int64)  # the timeline frame each smooth row holds
+        self.noise = np.zeros((cap, J))  # the windows' noise_share, blended like the positions
         self.live = np.full((cap, J, 3), np.nan)
         self.live_rec = np.zeros((cap, J), dtype=bool)
         self.conf = np.zeros((cap, J))

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .blending import HANDOVER_S, crossfade_frames, handover_frames
+from .blending import HANDOVER_S, OUTPUT_SMOOTH_S, crossfade_frames, handover_frames
 from .live import LiveConfig
 
 __all__ = [
@@ -78,6 +78,9 @@ class EngineConfig:
     startup_hop: the hop (frames) while a body's first ``window`` frames arrive
     (:func:`streamfix.streaming.blending.next_window_end`); None = ``max(1, hop // 2)``, at most
     ``hop`` (= no extra windows: the file schedule, whose 1.5 s lookahead gains nothing from them).
+    output_smooth_s: half-width (s) of the binomial smoothing of the blended clean output
+    (:func:`streamfix.streaming.blending.smooth_blended`; rounded to frames at ``rate_hz``,
+    0 = none): the frame-to-frame jitter that window estimates and their hand-overs leave.
     """
 
     window: int | None = None
@@ -104,6 +107,7 @@ class EngineConfig:
     live_output: bool = True
     handover_s: float = HANDOVER_S
     startup_hop: int | None = None
+    output_smooth_s: float = OUTPUT_SMOOTH_S
 
     @classmethod
     def for_files(cls, rate_hz: float = 30.0, **settings: Any) -> "EngineConfig":
@@ -139,6 +143,8 @@ class EngineConfig:
         object.__setattr__(self, "window", W)
         object.__setattr__(self, "lookahead", L)
         object.__setattr__(self, "hop", H)
+        if not (np.isfinite(self.output_smooth_s) and self.output_smooth_s >= 0):
+            raise ValueError(f"output_smooth_s must be >= 0 s, got {self.output_smooth_s}")
         if not (np.isfinite(self.handover_s) and self.handover_s > 0):
             raise ValueError(f"handover_s must be a positive number of seconds, got {self.handover_s}")
         W, H, L = self.window, self.hop, self.lookahead
@@ -171,6 +177,11 @@ class EngineConfig:
         (:func:`streamfix.streaming.blending.handover_frames`), where a seam would show."""
         return handover_frames(n_frames, self.lookahead, self.hop, crossfade_frames(self.handover_s, self.rate_hz),
                                self.window, self.startup_hop)
+
+    @property
+    def output_smooth_frames(self) -> int:
+        """Half-width of the clean output's smoothing in frames (0 = none)."""
+        return int(round(self.output_smooth_s * self.rate_hz))
 
     @property
     def hop_limit(self) -> int:

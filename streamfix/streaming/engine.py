@@ -29,6 +29,12 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
   therefore sum to 1 for every frame, and the mean is accumulated incrementally as
   ``m <- m + w / (sum w) (x - m)``, so a window solver that returns its input leaves
   the input unchanged bit for bit.
+* where the windows report sensor noise (their ``info[NOISE_SHARE_KEY]``, blended like
+  the positions; ``clean_window``'s stage-3 gate), the blended values are then smoothed
+  over time by a short kernel that keeps quadratic motion (``output_smooth_s``,
+  :meth:`StreamEngine._smooth_output`): the hand-overs and the bone projection leave
+  frame-to-frame jitter that no single window sees. The kernel's future frames are the
+  newest window's values, so this adds no latency; exact data is left as blended.
 * frame ``n`` is emitted on ``clean`` when frame ``n + L`` has been pushed: the
   **latency is fixed at L frame periods (L / rate_hz s) plus the window's compute
   time**, and in steady state every push emits exactly one clean frame. At shutdown
@@ -122,10 +128,11 @@ from typing import Any
 
 import numpy as np
 
+from ..core.filters import twiced_binomial_taps
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
-from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end
+from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end, smooth_blended
 from .bone_lengths import LengthSources, record_raw_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,
@@ -147,7 +154,7 @@ from .bodies import (  # the constants are re-exported: the engine's documented 
 from .config import DEFAULT_HOP_S, DEFAULT_LOOKAHEAD_S, DEFAULT_WINDOW_S, EngineConfig  # noqa: F401
 from .histogram import Histogram
 from .live import LivePath
-from .solver_api import WindowOutput, WindowSolver
+from .solver_api import NOISE_SHARE_KEY, WindowOutput, WindowSolver
 from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations
 
 __all__ = [
@@ -228,6 +235,7 @@ class StreamEngine:
         self.solve_hist = Histogram()
         self._last_iterations = 0
         self._first_solver_error: str | None = None  # what the first failed window raised
+        self._output_taps = twiced_binomial_taps(self.cfg.output_smooth_frames)  # see _smooth_output
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._inflight = 0  # submitted, not finished (threaded)
@@ -450,6 +458,7 @@ class StreamEngine:
             body.mean[k] = 0.0
             body.den[k] = 0.0
             body.recw[k] = 0.0
+            body.noise[k] = 0.0
             if bid in present_ids:
                 t0 = time.perf_counter()
                 bf = inputs.get(bid)
@@ -670,6 +679,8 @@ class StreamEngine:
             rec = np.zeros(pos.shape[:2], dtype=bool) if rec is None else np.asarray(rec, dtype=bool)
             job.result_pos, job.result_rec = pos, rec
             job.n_iter = int(getattr(res, "iterations", 0) or 0)
+            info = getattr(res, "info", None) or {}
+            job.noise_share = float(np.clip(info.get(NOISE_SHARE_KEY, 0.0), 0.0, 1.0))
             job.converged = bool(getattr(res, "converged", True))
             bridged = getattr(res, "bridged", None)
             if bridged:
@@ -771,6 +782,34 @@ class StreamEngine:
         body.mean[rows] = mean + frac[..., None] * (np.where(finite[..., None], x, mean) - mean)
         body.recw[rows] = body.recw[rows] + wj * r
         body.den[rows] = den
+        body.noise[rows] = body.noise[rows] + frac * (job.noise_share - body.noise[rows])
+        self._smooth_output(body, lo, job.end)
+
+    def _smooth_output(self, body: Body, lo: int, end: int) -> None:
+        """Smooth the blended values of frames ``lo .. end - 1`` (:func:`smooth_blended`,
+        the twiced binomial of half-width ``output_smooth_s``).
+
+        Run after each blend on the frames that window changed: a frame's smoothed value is
+        the one computed after the last window that reaches it, from its final neighbours
+        before it and the newest window's (provisional) values after it, so it depends on
+        the windows' order only and adds no latency. Frames without ``h`` blended
+        neighbours on both sides (a body's first and last frames) keep their value. The
+        smoothing is weighted by the windows' ``noise_share`` (blended like the positions):
+        what a window found to be sensor noise is smoothed; exact data (mocap, the paper's
+        protocol), where it would only add bias, is left alone.
+        """
+        taps = self._output_taps
+        h = len(taps) // 2
+        if h < 1:
+            return
+        frames = np.arange(lo - h, end + h)
+        rows = frames % body.cap
+        have = (frames >= 0) & (frames < end) & body.present[rows]
+        usable = have[:, None] & (body.den[rows] > 0)
+        mid = rows[h:len(rows) - h]
+        share = body.noise[mid][..., None]
+        body.smooth[mid] = share * smooth_blended(body.mean[rows], usable, taps) + (1.0 - share) * body.mean[mid]
+        body.smooth_for[mid] = frames[h:len(frames) - h]
 
     def _finalise(self, st: StreamState, body: Body) -> None:
         """Move the body's frames whose clean value can no longer change to the stream."""
@@ -792,12 +831,13 @@ class StreamEngine:
             if body.present[k]:
                 den = body.den[k]
                 have = den > 0
+                value = body.smooth[k] if body.smooth_for[k] == n else body.mean[k]
                 if have.all():  # every joint has a window value (the usual case): no masking
-                    pos = body.mean[k].copy()
+                    pos = value.copy()
                     rec = ~body.valid[k] | (body.recw[k] / den > 0.5)
                 else:  # no solved window gave these joints a value: the live one
                     self.counters["joints_live_fallback"] += int((~have).sum())
-                    pos = np.where(have[:, None], body.mean[k], body.live[k])
+                    pos = np.where(have[:, None], value, body.live[k])
                     recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
                     rec = ~body.valid[k] | ~have | (recw > 0.5)
                     rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])

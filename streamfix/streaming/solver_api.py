@@ -8,7 +8,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["WindowOutput", "WindowSolver"]
+__all__ = ["NOISE_SHARE_KEY", "WindowOutput", "WindowSolver"]
+
+NOISE_SHARE_KEY = "sensor_noise_share"
+"""Key of a window solver's ``info``: in [0, 1], how much of the window is sensor noise
+that the engine may smooth at the output (:meth:`StreamEngine._smooth_output`); absent
+= 0, the output is left as the solver gave it. ``clean_window`` writes its stage-3 gate."""
 
 WindowSolver = Callable[..., Any]
 """``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,
