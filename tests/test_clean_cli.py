@@ -119,3 +119,22 @@ def test_clean_reports_windows_that_failed_and_keeps_every_frame(shared_data, tm
     assert "window(s) failed to solve" in err and "No module named 'pywt'" in err
     a, b = read_motion(src), read_motion(out)
     assert b.n_frames == a.n_frames and np.isfinite(b.positions).all()
+
+
+def test_an_unimportable_solver_stops_clean_and_serve_with_the_reason(shared_data, tmp_path, capsys, monkeypatch):
+    """A missing dependency (here the solver module itself) must not leave ``clean`` or
+    ``serve`` running the live path and calling it clean."""
+    from streamfix.streaming.solver_api import WindowSolverError
+    from streamfix.streaming.window_solvers import default_window_solver
+
+    monkeypatch.setitem(sys.modules, "streamfix.core.pipeline", None)  # import fails as if a dependency were missing
+    with pytest.raises(WindowSolverError, match="cannot be imported"):
+        default_window_solver()
+    out = tmp_path / "clean.csv"
+    assert main(["clean", str(shared_data / "kinect_v2" / "Ges01_wavehand.csv"), str(out)]) == 1
+    assert "window solver cannot be imported" in capsys.readouterr().err and not out.exists()
+    from test_e2e_harness import free_port
+
+    src = shared_data / "kinect_v2" / "Ges01_wavehand.csv"
+    assert main(["serve", "--source", f"replay:{src}", "--out", f"tcp://127.0.0.1:{free_port()}"]) == 2
+    assert "cannot start the engine: the window solver cannot be imported" in capsys.readouterr().err

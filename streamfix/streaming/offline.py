@@ -19,13 +19,9 @@ import numpy as np
 from ..frames import BodyFrame, SkeletonFrame
 from ..motion import Motion
 from .engine import EngineConfig, StreamEngine, WindowSolver
+from .solver_api import WindowSolverError
 
 __all__ = ["WindowSolverError", "clean_motion", "motion_frames"]
-
-
-class WindowSolverError(RuntimeError):
-    """Every window of a recording failed to solve (a broken installation, a solver bug):
-    the engine's ``clean`` output would be its live path's, not a cleaning."""
 
 
 def motion_frames(motion: Motion, stream_id: str = "offline", body_id: int = 0, seq0: int = 0):

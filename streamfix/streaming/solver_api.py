@@ -8,7 +8,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["NOISE_SHARE_KEY", "WindowOutput", "WindowSolver"]
+__all__ = ["NOISE_SHARE_KEY", "WindowOutput", "WindowSolver", "WindowSolverError"]
 
 NOISE_SHARE_KEY = "sensor_noise_share"
 """Key of a window solver's ``info``: in [0, 1], how much of the window is sensor noise
@@ -33,3 +33,9 @@ class WindowOutput:
     converged: bool = True
     info: dict = field(default_factory=dict)
     bridged: dict = field(default_factory=dict)  # source -> joint-frames filled before the solver
+
+
+class WindowSolverError(RuntimeError):
+    """The window solver cannot clean: it cannot be imported (an incomplete installation),
+    or every window of a recording failed. Without it the engine's ``clean`` output would
+    be its live path's, not a cleaning, so commands stop and say why."""

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .solver_api import WindowOutput, WindowSolver
+from .solver_api import WindowOutput, WindowSolver, WindowSolverError
 
 __all__ = ["alm_window_solver", "default_window_solver", "wants", "with_max_iterations"]
 
@@ -42,11 +42,18 @@ def default_window_solver() -> WindowSolver:
     """``streamfix.core.pipeline.clean_window`` behind the long-gap bridge
     (:class:`~streamfix.streaming.bridging.BridgingWindowSolver`: joints missing for
     >= 1/3 of a window and blackouts are filled from PCA on the body's clean history or
-    the learned prior first), else the ALM adapter."""
+    the learned prior first).
+
+    Raises :class:`WindowSolverError` when the solver stack cannot be imported (a
+    dependency such as PyWavelets missing): every window would fail, and ``clean`` would
+    carry the live path's output instead of a cleaning.
+    """
     try:
         from ..core.pipeline import clean_window  # type: ignore[attr-defined]  # noqa: F401
-    except ImportError:
-        return alm_window_solver
+    except ImportError as exc:
+        raise WindowSolverError(
+            f"the window solver cannot be imported ({exc}); the installation is incomplete: "
+            "reinstall streamfix with its dependencies (pip install streamfix)") from exc
     from .bridging import BridgingWindowSolver
 
     return BridgingWindowSolver()
