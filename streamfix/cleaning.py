@@ -72,7 +72,7 @@ def clean_recording(
     the gap filler; ``training``: reference takes for it (files / directories). Raises
     ``ValueError`` / ``OSError`` from the gap filler with a message saying so, and
     :class:`~streamfix.streaming.offline.WindowSolverError` when no window solved; windows
-    that failed among solved ones are counted in a note.
+    that failed among solved ones are counted in ``metrics['solver_errors']``.
     """
     from .streaming.bridging import long_gap_frames
     from .streaming.offline import clean_motion
@@ -97,10 +97,6 @@ def clean_recording(
             note += f", rigid-pair plausibility {info['plausibility']:.2f}"
         notes.append(note + ")")
     cleaned, metrics = clean_motion(motion, cfg, keep_filled=keep_filled, progress=progress)
-    failed = int(metrics.get("solver_errors", 0))
-    if failed:
-        notes.append(f"{failed} of {failed + int(metrics.get('windows_solved', 0))} windows failed to solve "
-                     f"(first: {metrics.get('first_solver_error')}); their frames hold the live path's values")
     if gapfilled is not None and cleaned.recovered is not None and gapfilled.any():
         # the engine saw the filled samples as data: keep them flagged as recovered
         times = np.asarray(source.timestamps)

@@ -526,7 +526,6 @@ def binomial_taps(half_width: int) -> np.ndarray:
     return taps
 
 
-
 def twiced_binomial_taps(half_width: int) -> np.ndarray:
     """Tukey's twicing of the binomial kernel ``B`` of half-width ``h``: ``2 B - B * B``
     (``4 h + 1`` taps; ``[-1, 4, 10, 4, -1] / 16`` for ``h = 1``).

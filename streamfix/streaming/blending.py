@@ -8,7 +8,7 @@ __all__ = ["HANDOVER_S", "OUTPUT_SMOOTH_S", "crossfade_frames", "handover_frames
            "next_window_end", "smooth_blended", "window_ends"]
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
-OUTPUT_SMOOTH_S = 1.0 / 30.0  # half-width of the blended output's smoothing (1 frame at 30 Hz); see smooth_blended
+OUTPUT_SMOOTH_S = 1.0 / 30.0  # binomial half-width of the output smoothing: 1 frame at 30 Hz = the 5-tap twiced kernel
 
 
 def next_window_end(end: int, window: int, hop: int, startup_hop: int, origin: int) -> int:
@@ -116,7 +116,6 @@ def handover_frames(n_frames: int, lookahead: int, hop: int, crossfade: int, win
     out[switch] = True
     out[switch - 1] = True
     return out
-
 
 
 def smooth_blended(values: np.ndarray, usable: np.ndarray, taps: np.ndarray) -> np.ndarray:

@@ -78,9 +78,10 @@ class EngineConfig:
     startup_hop: the hop (frames) while a body's first ``window`` frames arrive
     (:func:`streamfix.streaming.blending.next_window_end`); None = ``max(1, hop // 2)``, at most
     ``hop`` (= no extra windows: the file schedule, whose 1.5 s lookahead gains nothing from them).
-    output_smooth_s: half-width (s) of the binomial smoothing of the blended clean output
-    (:func:`streamfix.streaming.blending.smooth_blended`; rounded to frames at ``rate_hz``,
-    0 = none): the frame-to-frame jitter that window estimates and their hand-overs leave.
+    output_smooth_s: half-width (s) of the binomial whose twicing smooths the blended clean
+    output where windows found sensor noise (``h`` frames at ``rate_hz`` give a ``4 h + 1``
+    tap kernel, :func:`streamfix.core.filters.twiced_binomial_taps`; 0 = none): the
+    frame-to-frame jitter that window estimates and their hand-overs leave.
     """
 
     window: int | None = None
@@ -180,7 +181,7 @@ class EngineConfig:
 
     @property
     def output_smooth_frames(self) -> int:
-        """Half-width of the clean output's smoothing in frames (0 = none)."""
+        """The binomial half-width of the clean output's smoothing in frames (0 = none)."""
         return int(round(self.output_smooth_s * self.rate_hz))
 
     @property

@@ -804,10 +804,13 @@ class StreamEngine:
             return
         frames = np.arange(lo - h, end + h)
         rows = frames % body.cap
-        have = (frames >= 0) & (frames < end) & body.present[rows]
-        usable = have[:, None] & (body.den[rows] > 0)
         mid = rows[h:len(rows) - h]
         share = body.noise[mid][..., None]
+        if not share.any():  # exact data: the blended values stand (no row holds a smoothed value)
+            body.smooth_for[mid] = -1
+            return
+        have = (frames >= 0) & (frames < end) & body.present[rows]
+        usable = have[:, None] & (body.den[rows] > 0)
         body.smooth[mid] = share * smooth_blended(body.mean[rows], usable, taps) + (1.0 - share) * body.mean[mid]
         body.smooth_for[mid] = frames[h:len(frames) - h]
 

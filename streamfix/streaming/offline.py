@@ -67,7 +67,7 @@ def clean_motion(
     ``progress(done, total)`` is called now and then. Returns ``(cleaned motion,
     engine metrics)``; the cleaned motion's ``recovered`` marks recovered joints.
     ``topic="live"`` collects the causal ``live`` output instead of ``clean``.
-    Raises :class:`WindowSolverError` when windows were solved and every one failed;
+    Raises :class:`WindowSolverError` when ``clean`` is asked for and every window failed;
     when only some failed, ``metrics['solver_errors']`` counts them (their frames hold
     the live path's values) and ``metrics['first_solver_error']`` says why.
     """
@@ -79,15 +79,15 @@ def clean_motion(
     if topic == "clean" and cfg.live_output:
         cfg = replace(cfg, live_output=False)  # the live topic is discarded: do not compute it
     clean, metrics = _run_engine(motion, cfg, window_solver, topic, progress)
+    if topic == "clean" and metrics.get("solver_errors", 0) and not metrics.get("windows_solved", 0):
+        raise WindowSolverError(
+            f"every window solve failed ({metrics['solver_errors']} windows); the first raised "
+            f"{metrics.get('first_solver_error')}")
     if not cfg.live_output and metrics.get("joints_live_fallback", 0):
         # some joint-frames had no window value and would have taken the live path's:
         # run again with it, so the output is exactly the engine's (rare: failed windows)
         cfg = replace(cfg, live_output=True)
         clean, metrics = _run_engine(motion, cfg, window_solver, topic, None)
-    if metrics.get("solver_errors", 0) and not metrics.get("windows_solved", 0):
-        raise WindowSolverError(
-            f"every window solve failed ({metrics['solver_errors']} windows); the first raised "
-            f"{metrics.get('first_solver_error')}")
     frames = [f for f in clean if keep_filled or not f.filled]
     J = motion.n_joints
     pos = np.full((len(frames), J, 3), np.nan)
