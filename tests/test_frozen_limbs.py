@@ -133,6 +133,20 @@ def test_a_rigid_limb_beside_a_still_twin_is_a_person_holding_still():
     assert frozen_inferred(still, inferred, parents, limbs, RATE)[30:75, 1:4].all()  # without the twin test
 
 
+def test_a_run_little_longer_than_the_articulation_span_is_decided_on_its_interior():
+    """A 17-frame freeze (0.57 s) against a 15-frame articulation span: only its 3 middle
+    frames have a span wholly inside the run; the others see the arm bending before or
+    after it, and a median over all of them called the frozen arm bending."""
+    x, parents, limbs, mirror = _two_arms(90)
+    inferred = np.zeros((90, 7), dtype=bool)
+    inferred[30:47, 1:4] = True
+    frozen = x.copy()
+    frozen[30:47, 1:4] = x[29, 1:4][None]
+    got = frozen_inferred(frozen, inferred, parents, limbs, RATE, mirror=mirror)
+    assert got[30:47, 1:4].all() and not got[:, 4:].any()
+    assert not frozen_inferred(x, inferred, parents, limbs, RATE, mirror=mirror).any()  # bending: not frozen
+
+
 def test_a_twin_must_bend_clearly_not_just_above_the_rigid_threshold():
     """A twin articulating between RIGID_M and TWIN_BENDS_M (a leg settling after a move)
     does not make the other limb a guess: the decision would flip between overlapping
@@ -232,6 +246,23 @@ def test_the_default_engine_replaces_a_frozen_or_drifting_inferred_arm(shared_da
         assert out.recovered[a + 20:b - 10, arm].all()  # the replaced samples are flagged recovered
         rest = np.setdiff1d(np.arange(25), arm)
         assert np.abs(out.positions[:, rest] - kept.positions[:, rest]).mean() < 0.005  # the rest barely moves
+
+
+def test_a_limb_frozen_for_longer_than_a_window_stays_released_to_its_end(shared_data):
+    """4 s frozen, twice the window: the windows inside the run see no tracked sample of
+    the arm, and before the release rode along in the solver state they handed the frozen
+    pose back mid-run (the limb snapped from the fill to the guess). Both schedules."""
+    a, b = 60, 180
+    truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data, a=a, b=b)
+    motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
+    for cfg in (EngineConfig(rate_hz=RATE), EngineConfig.for_files(RATE)):
+        out, _ = clean_motion(motion, cfg)
+        kept, _ = clean_motion(motion, cfg, BridgingWindowSolver(release_frozen=False))
+        assert out.recovered[a + 20:b, arm].all()
+        e_in, e_out, e_kept = (_err(y, truth, a, b, arm) for y in (x, out.positions, kept.positions))
+        print(f"arm frozen 4 s (hop {cfg.hop}): input {e_in * 1000:.0f} mm, clean {e_out * 1000:.0f}, "
+              f"without the release {e_kept * 1000:.0f}")
+        assert e_out < 0.9 * min(e_in, e_kept)
 
 
 def test_an_inferred_arm_that_is_right_is_left_alone(shared_data):

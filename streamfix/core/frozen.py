@@ -131,8 +131,9 @@ def frozen_inferred(
     ``min_run_s`` long, its joint is one of ``limb_joints`` (``(J,)`` bool: the joints
     below a limb's root, whose position relative to their parent changes as the person
     moves), and the joint's :func:`articulation` over ``span_s`` stays below ``rigid_m``
-    across the run's frames (one decision per run, taken on the run's median, so a
-    frozen limb is replaced as one stretch, not frame by frame).
+    across the run's frames (one decision per run, taken on the median over the run's
+    interior, the frames whose span lies inside the run, or over all its frames when it
+    has none; so a frozen limb is replaced as one stretch, not frame by frame).
 
     Only joints on a bone of at least ``min_bone_m`` (mean length in the window: elbows,
     wrists, knees, ankles) decide; the joints on short bones below them (hands, hand tips,
@@ -173,7 +174,14 @@ def frozen_inferred(
     label = np.cumsum(starts.ravel()).reshape(J, T) * runs
     n_runs = int(label.max())
     if n_runs:
-        med = _run_medians(art.T, label, n_runs)
+        # decided on the run's interior, the frames whose whole span lies in the run: at
+        # its ends the span reaches the moving limb before and after the freeze, and in a
+        # run only a little longer than the span those ends are most of its frames
+        half = int(round(span_s * rate_hz)) // 2
+        interior = ndimage.binary_erosion(runs, structure=np.ones((1, 2 * half + 1), dtype=bool), border_value=1)
+        med = _run_medians(np.where(interior, art.T, np.nan), label, n_runs)
+        whole = _run_medians(art.T, label, n_runs)
+        med = np.where(np.isfinite(med), med, whole)
         frozen_run = np.concatenate([[False], med < rigid_m])  # NaN (no measure): not frozen
         if mirror is not None:
             # the same frames of the mirror joint: a limb held still beside a still twin is a

@@ -76,9 +76,12 @@ second or more while its left/right twin bends is the sensor's frozen or driftin
 (:mod:`streamfix.core.frozen`); the hands and feet below it go with it. Within 1-2 s of
 a tracked sample of the same joint (``streamfix.core.inferred.TRACKED_NEAR_S``) these
 samples become missing before anything else runs: the long-gap bridge and the window
-pipeline fill them, and they are flagged ``recovered``. The guess stays farther from a
-tracked sample, and beside a twin that does not clearly bend (a seated user's legs under
-a desk in ``seated_joints.csv``, one of them settling after a move). The hazard is a limb
+pipeline fill them, and they are flagged ``recovered``. A release goes on to the end of the
+rigid run in the windows after it, which may hold no tracked sample of the joint
+(:mod:`streamfix.streaming.frozen_release`: the released samples ride along in the solver
+state). The guess stays where no window released it near a tracked sample, and beside a
+twin that does not clearly bend (a seated user's legs under a desk in
+``seated_joints.csv``, one of them settling after a move). The hazard is a limb
 the person really holds still while the other one moves, which looks the same: it is
 replaced by the fill as well (the sensor protocol's ``flagged`` kind scores that cost;
 ``benchmarks/results/sensor.md`` has the figures).
@@ -109,6 +112,7 @@ import numpy as np
 
 from ..core.interpolate import missing_run_lengths
 from ..skeletons import Skeleton
+from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
 from .solver_api import WindowOutput
 
 __all__ = [
@@ -488,6 +492,8 @@ class BridgingWindowSolver:
         conf = finite.astype(np.float64) if confidence is None else np.where(finite, confidence, 0.0)
         obs = conf > 0
         replaced = None  # (T, J) samples the stages below replaced: flagged recovered
+        released = None  # (T, J) frozen inferred samples released: carried to the next window
+        state, released_before = split_state(state)
         plant_weight = None  # foot support's correction weight (T, J), when it planted a leg
         if self.undo_swaps and skeleton is not None:
             # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
@@ -499,12 +505,15 @@ class BridgingWindowSolver:
         if self.release_frozen and skeleton is not None:
             # inferred limbs that stopped bending (the sensor's frozen or drifting guess,
             # core/frozen.py) become missing: the bridge and the solver fill them
-            frozen = self._frozen(x, conf, bones, rate_hz, skeleton)
+            layout = self._limb_joints.get(skeleton.name)
+            if layout is None:
+                layout = self._limb_joints[skeleton.name] = limb_layout(skeleton)
+            frozen = frozen_release(x, conf, bones, rate_hz, layout, released_before)
             if frozen.any():
                 x = np.where(frozen[..., None], np.nan, x)
                 conf = np.where(frozen, 0.0, conf)
                 obs = conf > 0
-                replaced = frozen
+                replaced = released = frozen
         if self.verify_inferred and skeleton is not None:
             # inferred limbs the rest of the body contradicts (frozen or drifting): the
             # bridging fill takes over (core/inferred.py); before foot support, which
@@ -527,41 +536,14 @@ class BridgingWindowSolver:
         if replaced is None:
             return res
         res = _with_recovered(res, replaced)
+        if released is not None:
+            res.state = ReleaseState(res.state, released)
         if plant_weight is not None:
             # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
             from ..core.support import SupportConfig, smooth_planted
 
             res.positions = smooth_planted(res.positions, plant_weight, rate_hz, SupportConfig().planted_smooth_s)
         return res
-
-    def _frozen(self, x, conf, bones, rate_hz, skeleton: Skeleton) -> np.ndarray:
-        """``(T, J)`` bool: inferred samples of a frozen or drifting limb near a tracked
-        sample of the same joint (core/frozen.py). A limb inferred for longer than
-        ``TRACKED_NEAR_S`` (a seated person's legs under a desk) keeps the sensor's guess:
-        with no tracked sample to anchor a fill, the fill guesses worse (on
-        ``seated_joints.csv``, before the twin test, releasing them for 4 s made the legs
-        jitter more than median + Savitzky-Golay's and a filled hand 7 % longer than its
-        guessed twin)."""
-        from ..core.excursion import parents_from_bones
-        from ..core.frozen import frozen_inferred
-        from ..core.inferred import tracked_proximity
-        from ..limbs import limb_groups, mirror_index
-
-        inferred = (conf > 0) & (conf < 1.0)
-        if not inferred.any():
-            return np.zeros(conf.shape, dtype=bool)
-        layout = self._limb_joints.get(skeleton.name)
-        if layout is None:
-            parents = parents_from_bones(skeleton.bone_array, skeleton.n_joints)
-            limbs = np.zeros(skeleton.n_joints, dtype=bool)
-            for pair in limb_groups(skeleton):
-                for side in pair:
-                    limbs[side] = True
-            limbs &= (parents >= 0) & limbs[np.maximum(parents, 0)]  # below the limb's root
-            layout = self._limb_joints[skeleton.name] = (limbs, mirror_index(skeleton))
-        limbs, mirror = layout
-        frozen = frozen_inferred(x, inferred, parents_from_bones(bones, x.shape[1]), limbs, rate_hz, mirror=mirror)
-        return frozen & (tracked_proximity(conf >= 1.0, rate_hz) > 0)
 
     def _verify_inferred(self, x, conf, obs, bones, rate_hz, history, skeleton: Skeleton):
         """(positions, confidence, replaced mask or None): long runs of inferred samples
