@@ -15,7 +15,8 @@ minutes) is still left alone: with no tracked sample to anchor it, the fill gues
 (on ``seated_joints.csv``, before the twin test, releasing the legs for 4 s made them
 jitter more than median + Savitzky-Golay's). The memory is the solver's own, not the
 clean history's recovered samples: those also come from foot support's planted legs, and
-continuing from them released the seated right leg and put its ankle 1.2 m below the knee.
+continuing from them released the seated right leg and moved its ankle 1.2 m from the
+sensor's guess, below the floor.
 
 Arrays: positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool.
 """
