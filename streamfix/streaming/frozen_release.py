@@ -16,7 +16,7 @@ minutes) is still left alone: with no tracked sample to anchor it, the fill gues
 jitter more than median + Savitzky-Golay's). The memory is the solver's own, not the
 clean history's recovered samples: those also come from foot support's planted legs, and
 continuing from them released the seated right leg and moved its ankle 1.2 m from the
-sensor's guess, below the floor.
+sensor's guess.
 
 Arrays: positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool.
 """
