@@ -44,3 +44,10 @@ def test_release_state_shifts_its_mask_and_its_inner_state():
         st.shifted(7)
     assert split_state(st) == (st.inner, released)
     assert split_state("plain")[0] == "plain" and split_state("plain")[1] is None
+
+
+def test_run_labels_number_each_joints_runs_in_order():
+    from streamfix.core.interpolate import run_labels
+
+    mask = np.array([[1, 0], [1, 1], [0, 1], [1, 0]], dtype=bool)
+    np.testing.assert_array_equal(run_labels(mask), [[1, 0], [1, 3], [0, 3], [2, 0]])

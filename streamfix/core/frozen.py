@@ -25,7 +25,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.ndimage import uniform_filter1d
 
-from .interpolate import missing_run_lengths
+from .interpolate import missing_run_lengths, run_labels
 
 __all__ = ["articulation", "frozen_inferred", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S",
            "MIN_DECIDING_BONE_M"]
@@ -170,8 +170,7 @@ def frozen_inferred(
     art = articulation(x, par, int(round(span_s * rate_hz)), joints=cols)
     # one label per (joint, run) of candidate samples; a run is frozen when the median
     # articulation over its frames is below rigid_m
-    starts = runs & ~np.concatenate([np.zeros((J, 1), dtype=bool), runs[:, :-1]], axis=1)
-    label = np.cumsum(starts.ravel()).reshape(J, T) * runs
+    label = run_labels(runs.T).T  # (J, T)
     n_runs = int(label.max())
     if n_runs:
         # decided on the run's interior, the frames whose whole span lies in the run: at

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 __all__ = ["interpolate_linear", "interpolate_spline", "spline_operator", "interpolate", "observed_mask",
-           "neighbour_observations", "continuity_baseline", "missing_run_lengths"]
+           "neighbour_observations", "continuity_baseline", "missing_run_lengths", "run_labels"]
 
 
 def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
@@ -62,6 +62,15 @@ def missing_run_lengths(observed: np.ndarray) -> np.ndarray:
     prev, nxt = neighbour_observations(obs[:, None] if squeeze else obs)
     run = np.where(obs[:, None] if squeeze else obs, 0, nxt - prev - 1)
     return run[:, 0] if squeeze else run
+
+
+def run_labels(mask: np.ndarray) -> np.ndarray:
+    """``(T, J)`` int: each run of consecutive True samples of one joint (``mask`` ``(T, J)``)
+    numbered 1, 2, ... (joint by joint, in time order within a joint); 0 outside runs."""
+    m = np.asarray(mask, dtype=bool)
+    T, J = m.shape
+    starts = m & ~np.concatenate([np.zeros((1, J), dtype=bool), m[:-1]], axis=0)
+    return (np.cumsum(starts.T.ravel()).reshape(J, T) * m.T).T
 
 
 def interpolate_linear(

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.interpolate import run_labels
 from ..skeletons import Skeleton
 
 __all__ = ["ReleaseState", "split_state", "frozen_release", "runs_touching", "limb_layout"]
@@ -69,9 +70,7 @@ def runs_touching(mask: np.ndarray, seeds: np.ndarray) -> np.ndarray:
     """``(T, J)`` bool: the runs of ``mask`` (consecutive True samples of one joint) that
     contain at least one sample of ``seeds``."""
     m = np.asarray(mask, dtype=bool)
-    T, J = m.shape
-    starts = m & ~np.concatenate([np.zeros((1, J), dtype=bool), m[:-1]], axis=0)
-    label = (np.cumsum(starts.T.ravel()).reshape(J, T) * m.T).T  # (T, J), 0 outside runs
+    label = run_labels(m)
     hit = np.unique(label[m & np.asarray(seeds, dtype=bool)])
     return np.isin(label, hit[hit > 0])
 
