@@ -63,6 +63,26 @@ def test_a_walking_leg_missing_from_the_stream_start_follows_the_prior(shared_da
     assert free < 0.9 * held, (free, held)
 
 
+def test_a_walking_bodys_missing_arm_swings_with_the_prior_not_held(shared_data):
+    """While the body travels (a Xia walk, ~1 m/s) the prior's arm fill is not held near the
+    arm's last pose: the gait tells the prior how the arm swings."""
+    take = load_take(shared_data / "xia_bvh" / "neutral_01_000.bvh")
+    pos, obs = resample_masked(take.positions, take.observed, take.rate_hz, 30.0)
+    pos, obs = pos[30:180], obs[30:180].copy()
+    arm = [KINECT_V2.index(j + "Right") for j in ("Elbow", "Wrist", "Hand", "HandTip", "Thumb")]
+    obs[5:50, arm] = False  # 1.5 s, from a sixth of a second into the stream
+    motion = Motion(np.where(obs[..., None], pos, np.nan), obs.astype(float), np.arange(len(pos)) / 30.0, 30.0,
+                    KINECT_V2)
+
+    def arm_error(solver):
+        out, _ = clean_motion(motion, window_solver=solver)
+        return float(np.linalg.norm(out.positions[5:50, arm] - pos[5:50, arm], axis=2).mean())
+
+    free = arm_error(BridgingWindowSolver())
+    held = arm_error(BridgingWindowSolver(travel_speed_mps=None))
+    assert free < 0.7 * held, (free, held)
+
+
 @pytest.mark.parametrize("take", ["cmu_bvh/131_02.bvh", "kinect_v2/Ges04_comehere.csv"])
 def test_default_method_is_within_1_1x_of_the_latent_fit_on_the_occlusion_protocol(shared_data, take):
     """Held-out takes, whole joints dropped per window: the engine's default solver against D(z*) alone."""

@@ -20,13 +20,34 @@ import numpy as np
 
 from .interpolate import continuity_baseline
 
-__all__ = ["EXCURSION_GAIN", "limit_excursion", "anchor_reference", "parents_from_bones"]
+__all__ = ["EXCURSION_GAIN", "limit_excursion", "anchor_reference", "parents_from_bones", "travel_speed"]
 
 EXCURSION_GAIN = 0.35
 """A fill may leave its continuity baseline (hold / linear) by at most this many times
 the joint's own recent range of motion (see :func:`limit_excursion`)."""
 
 _EPS = 1e-12
+
+
+def travel_speed(positions: np.ndarray, observed: np.ndarray, rate_hz: float) -> float:
+    """The body's net speed (m/s) from its first to its last observed frame.
+
+    The mean displacement of the joints observed in both of those frames, over the time
+    between them: the body travelling (walking, running), not its limbs moving in place,
+    whose swings cancel over a span of seconds. 0 when fewer than two frames or no
+    common joint are observed.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+    seen = np.flatnonzero(obs.any(axis=1))
+    if len(seen) < 2:
+        return 0.0
+    first, last = seen[0], seen[-1]
+    common = obs[first] & obs[last]
+    if not common.any():
+        return 0.0
+    shift = (x[last, common] - x[first, common]).mean(axis=0)
+    return float(np.linalg.norm(shift) * float(rate_hz) / (last - first))
 
 
 def parents_from_bones(bones: np.ndarray, n_joints: int) -> np.ndarray:

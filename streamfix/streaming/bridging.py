@@ -52,7 +52,12 @@ limb's anchor joint, so a walking body carries a held limb along). Why: with a
 whole limb missing, PCA on seconds of history guesses its pose from coincidental
 correlations with the rest of the body (the seated ankle's partners include the left
 hand, resting on the knee), and an arm moves on its own, which nothing else in the body
-tells the prior (a gesturing Kinect arm). The prior's fills of the legs and trunk are not
+tells the prior (a gesturing Kinect arm). Except while the body travels
+(:data:`TRAVEL_SPEED_MPS`): a walking body's arms swing with its gait, which the rest of
+the body does tell the prior, and an arm held near its last pose while the body walks on
+loses the swing (on the sensor protocol's walking takes, frozen and dropped limbs were
+filled closer to the truth with the prior's arms free there; no window of the paired or
+real-Kinect recordings, whose people exercise, gesture or sit in place, travels that fast). The prior's fills of the legs and trunk are not
 limited: their motion is what it learnt from an hour of real motion, and held near the
 last sample they lag a walking body (``tests/test_prior_bridge.py`` holds a walking leg
 to this; the sensor protocol's dropouts and a streamed occlusion protocol improved with it).
@@ -147,7 +152,11 @@ EXCURSION_SOURCES = ("pca",)
 """Fill sources whose samples the excursion limit applies to (every joint)."""
 PRIOR_LIMITED_LIMBS = ("left_arm", "right_arm")
 """Limbs (``streamfix.canonical.CANONICAL_LIMBS``) whose prior fills the excursion limit still
-applies to: an arm moves on its own, which the rest of the body cannot tell the prior."""
+applies to: an arm moves on its own, which the rest of the body cannot tell the prior..."""
+TRAVEL_SPEED_MPS = 0.5
+"""... unless the body travels at this net speed (m/s) or faster over the context and window
+(:func:`streamfix.core.excursion.travel_speed`): then the arms swing with the gait, which the
+rest of the body does tell the prior (None = always limited)."""
 EXCURSION_HORIZON_S = 1.0
 """Seconds of the joint's observed samples next to a gap that set its range of motion."""
 VERIFY_HISTORY_S = 1.0
@@ -238,6 +247,8 @@ class BridgingWindowSolver:
     ``sources``: the fill sources tried, from ``("time", "pca", "prior")`` (``time`` first
     when given: closed whole-frame blackouts, :func:`closed_blackout_mask`).
     ``use_prior``: None = whenever a prior is shipped for the skeleton's joint count.
+    ``travel_speed_mps``: the prior's arm fills are excursion-limited unless the body
+    travels this fast (:data:`TRAVEL_SPEED_MPS`; None = always limited).
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
     :data:`HISTORY_S`).
     """
@@ -261,6 +272,7 @@ class BridgingWindowSolver:
         prior_method: str = PRIOR_METHOD,
         excursion_sources: tuple[str, ...] = EXCURSION_SOURCES,
         prior_limited_limbs: tuple[str, ...] = PRIOR_LIMITED_LIMBS,
+        travel_speed_mps: float | None = TRAVEL_SPEED_MPS,
         verify_inferred: bool = False,
         release_frozen: bool = True,
     ) -> None:
@@ -286,6 +298,7 @@ class BridgingWindowSolver:
         self.excursion_gain = None if excursion_gain is None else float(excursion_gain)
         self.excursion_sources = tuple(excursion_sources)
         self.prior_limited_limbs = tuple(prior_limited_limbs)
+        self.travel_speed_mps = None if travel_speed_mps is None else float(travel_speed_mps)
         self.base = base
         self.sources = tuple(sources)
         self.use_prior = use_prior
@@ -405,7 +418,7 @@ class BridgingWindowSolver:
             done |= use
             if src in self.excursion_sources:
                 limited |= use
-            elif src == "prior" and self.prior_limited_limbs and use.any():
+            elif src == "prior" and self.prior_limited_limbs and use.any() and not self._travelling(ext, ext_obs, rate_hz):
                 from ..prior.init import limb_joint_mask
 
                 limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]
@@ -438,6 +451,14 @@ class BridgingWindowSolver:
                 done[:, cols] = True
                 counts["hold"] = int(T * len(cols))
         return out, done, counts
+
+    def _travelling(self, positions: np.ndarray, observed: np.ndarray, rate_hz: float) -> bool:
+        """True when the body's net speed over ``positions`` reaches ``travel_speed_mps``."""
+        if self.travel_speed_mps is None:
+            return False
+        from ..core.excursion import travel_speed
+
+        return travel_speed(positions, observed, rate_hz) >= self.travel_speed_mps
 
     def _history_ok(self, history: np.ndarray, joints: np.ndarray, rate_hz: float) -> bool:
         h = np.asarray(history)
