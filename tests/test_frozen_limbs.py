@@ -265,6 +265,21 @@ def test_a_limb_frozen_for_longer_than_a_window_stays_released_to_its_end(shared
         assert e_out < 0.9 * min(e_in, e_kept)
 
 
+def test_a_limb_frozen_from_a_streams_start_stays_released_while_the_windows_grow(shared_data):
+    """Frozen from the second frame for 3 s: the stream's first windows grow frame by frame,
+    get no warm start, and before the release memory carried across windows of different
+    lengths the release ended a second in (near the one tracked sample), handing the frozen
+    pose back for the rest of the run. Both schedules."""
+    truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data, a=91, b=181)
+    truth, x, conf = truth[90:], x[90:], conf[90:]
+    a, b = a - 90, b - 90
+    motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
+    for cfg in (EngineConfig(rate_hz=RATE), EngineConfig.for_files(RATE)):
+        out, _ = clean_motion(motion, cfg)
+        assert out.recovered[a + 45:b, arm].all(), cfg.hop
+        assert _err(out.positions, truth, a + 45, b, arm) < 0.5 * _err(x, truth, a + 45, b, arm)
+
+
 def test_an_inferred_arm_that_is_right_is_left_alone(shared_data):
     truth, x, conf, arm, a, b = walk_with_failed_arm(shared_data, move=False)
     motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)

@@ -51,3 +51,20 @@ def test_run_labels_number_each_joints_runs_in_order():
 
     mask = np.array([[1, 0], [1, 1], [0, 1], [1, 0]], dtype=bool)
     np.testing.assert_array_equal(run_labels(mask), [[1, 0], [1, 3], [0, 3], [2, 0]])
+
+
+def test_release_state_reframes_onto_a_window_of_another_length():
+    """A stream's first windows grow: the memory maps by frame, the warm start is dropped."""
+    released = np.zeros((4, 2), dtype=bool)
+    released[1:, 0] = True                      # frames 1..3 of a 4-frame window
+    st = ReleaseState(_Inner(), released)
+    grown = st.reframed(0, 7)                   # same first frame, 3 frames more
+    assert grown.inner is None and grown.n_frames == 7
+    want = np.zeros((7, 2), dtype=bool)
+    want[1:4, 0] = True
+    np.testing.assert_array_equal(grown.released, want)
+    later = st.reframed(2, 5)                   # starts 2 frames later
+    want = np.zeros((5, 2), dtype=bool)
+    want[0:2, 0] = True
+    np.testing.assert_array_equal(later.released, want)
+    assert not st.reframed(9, 5).released.any()  # no common frame

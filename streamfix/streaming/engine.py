@@ -18,7 +18,9 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
   the short first windows disagree most, and then share more frames); it is solved as
   soon as frame ``e_k - 1`` has arrived,
   warm-started from the previous window's solver state shifted by the hop
-  (``state.shifted(e_k - e_{k-1})``) when both windows have the full length ``W``;
+  (``state.shifted(e_k - e_{k-1})``) when both windows have the full length ``W``
+  (a state with per-frame memory, the frozen-limb release, is ``reframed`` onto windows
+  of other lengths, without the warm start);
 * the solution of window ``k`` is blended into every not-yet-emitted frame it covers
   with a weight that depends on how many of the window's frames lie after the frame
   (:func:`handover_weights`: a short crossfade at each hand-over, so a window's arrival
@@ -660,6 +662,11 @@ class StreamEngine:
                     state = st_.shifted(shift) if hasattr(st_, "shifted") else st_
                 except Exception:  # a state that cannot shift: solve cold
                     state = None
+        if state is None and st_ is not None and hasattr(st_, "reframed"):
+            # windows of different lengths (a stream's first windows grow): no warm start,
+            # but what the state remembers per frame (the frozen-limb release) carries over
+            prev_start = body.solver_state_end - st_.n_frames
+            state = st_.reframed(job.start - prev_start, T)
         config = with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
         kwargs: dict[str, Any] = {"state": state}
         if self._history:

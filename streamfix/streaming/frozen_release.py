@@ -59,6 +59,19 @@ class ReleaseState:
         return ReleaseState(inner, released)
 
 
+    def reframed(self, offset: int, n_frames: int) -> "ReleaseState":
+        """The release memory for a window of ``n_frames`` frames starting ``offset`` frames
+        after this one's first frame, whatever the two windows' lengths (a stream's first
+        windows grow frame by frame until they reach the full length); the warm start is
+        dropped (it needs windows of one length). Frames outside this window: none released."""
+        offset, n_frames = int(offset), int(n_frames)
+        released = np.zeros((n_frames,) + self.released.shape[1:], dtype=bool)
+        lo, hi = max(0, offset), min(self.n_frames, offset + n_frames)
+        if lo < hi:
+            released[lo - offset:hi - offset] = self.released[lo:hi]
+        return ReleaseState(None, released)
+
+
 def split_state(state: Any) -> tuple[Any, np.ndarray | None]:
     """``(inner warm start, released samples or None)`` of whatever state the engine passed."""
     if isinstance(state, ReleaseState):
