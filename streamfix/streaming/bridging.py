@@ -57,10 +57,11 @@ tells the prior (a gesturing Kinect arm). Except while the body travels
 the body does tell the prior, and an arm held near its last pose while the body walks on
 loses the swing (on the sensor protocol's walking takes, frozen and dropped limbs were
 filled closer to the truth with the prior's arms free there; no window of the paired or
-real-Kinect recordings, whose people exercise, gesture or sit in place, travels that fast). The prior's fills of the legs and trunk are not
-limited: their motion is what it learnt from an hour of real motion, and held near the
-last sample they lag a walking body (``tests/test_prior_bridge.py`` holds a walking leg
-to this; the sensor protocol's dropouts and a streamed occlusion protocol improved with it).
+real-Kinect recordings, whose people exercise, gesture or sit in place, travels that
+fast). The prior's fills of the legs and trunk are not limited: their motion is what it
+learnt from an hour of real motion, and held near the last sample they lag a walking body
+(``tests/test_prior_bridge.py`` holds a walking leg to this; the sensor protocol's dropouts
+and a streamed occlusion protocol improved with it).
 The gain trades the two failure modes: larger lets a moving limb keep its motion
 through the gap, smaller keeps a still limb from wandering; the real-Kinect gap cases in
 ``tests/test_integration_streaming_gaps.py`` (a seated leg missing 3 s, a still arm, a
@@ -418,7 +419,8 @@ class BridgingWindowSolver:
             done |= use
             if src in self.excursion_sources:
                 limited |= use
-            elif src == "prior" and self.prior_limited_limbs and use.any() and not self._travelling(ext, ext_obs, rate_hz):
+            elif (src == "prior" and self.prior_limited_limbs and use.any()
+                  and not self._travelling(ext, ext_obs, rate_hz)):
                 from ..prior.init import limb_joint_mask
 
                 limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]

@@ -9,10 +9,12 @@ limb snapped from the fill to the sensor's frozen pose and back. The windows of 
 solved in order, each warm-started from the one before (the engine shifts the state by
 the hop), so the release rides along in that state: :class:`ReleaseState` holds the
 samples the previous window released, and a frozen run that contains one of them goes on
-being released to its end (while it stays rigid; the twin test is not asked again). A run
-never released near a tracked sample (a seated person's legs under a desk, inferred for
-minutes) is still left alone: with no tracked sample to anchor it, the fill guesses worse
-(on ``seated_joints.csv``, before the twin test, releasing the legs for 4 s made them
+being released to its end (while it stays rigid; the twin test is not asked again); the
+memory also crosses a stream's first windows, which grow frame by frame and get no warm
+start (:meth:`ReleaseState.reframed`: a limb frozen from the stream's start was handed back
+a second in). A run never released near a tracked sample (a seated person's legs under a
+desk, inferred for minutes) is still left alone: with no tracked sample to anchor it, the
+fill guesses worse (on ``seated_joints.csv``, before the twin test, releasing the legs for 4 s made them
 jitter more than median + Savitzky-Golay's). The memory is the solver's own, not the
 clean history's recovered samples: those also come from foot support's planted legs, and
 continuing from them released the seated right leg and moved its ankle 1.2 m from the
