@@ -14,8 +14,8 @@ memory also crosses a stream's first windows, which grow frame by frame and get 
 start (:meth:`ReleaseState.reframed`: a limb frozen from the stream's start was handed back
 a second in). A run never released near a tracked sample (a seated person's legs under a
 desk, inferred for minutes) is still left alone: with no tracked sample to anchor it, the
-fill guesses worse (on ``seated_joints.csv``, before the twin test, releasing the legs for 4 s made them
-jitter more than median + Savitzky-Golay's). The memory is the solver's own, not the
+fill guesses worse (on ``seated_joints.csv``, before the twin test, releasing the legs for
+4 s made them jitter more than median + Savitzky-Golay's). The memory is the solver's own, not the
 clean history's recovered samples: those also come from foot support's planted legs, and
 continuing from them released the seated right leg and moved its ankle 1.2 m from the
 sensor's guess.
@@ -57,9 +57,7 @@ class ReleaseState:
         inner = self.inner
         if inner is not None and hasattr(inner, "shifted"):
             inner = inner.shifted(hop)
-        released = np.concatenate([self.released[hop:], np.zeros((hop,) + self.released.shape[1:], dtype=bool)])
-        return ReleaseState(inner, released)
-
+        return ReleaseState(inner, self.reframed(hop, T).released)
 
     def reframed(self, offset: int, n_frames: int) -> "ReleaseState":
         """The release memory for a window of ``n_frames`` frames starting ``offset`` frames
