@@ -94,6 +94,7 @@ def limit_excursion(
     gain: float = EXCURSION_GAIN,
     floor: float = 0.0,
     reference: np.ndarray | None = None,
+    ramp: int = 0,
 ) -> np.ndarray:
     """Keep a model fill within the joint's own recent range of motion of its continuity baseline.
 
@@ -105,7 +106,9 @@ def limit_excursion(
     ``p`` (and after ``n``) from ``y_p`` (``y_n``), the larger of the two. The fill's
     excursion ``d = y - b`` is shortened to at most ``gain * A + floor`` metres.
     ``positions`` ``(T, J, 3)`` m (filled), ``observed``/``filled`` ``(T, J)`` bool;
-    observed samples are unchanged.
+    observed samples are unchanged. ``ramp`` (frames, 0 = none): where the far end is not
+    seen, the ``k``-th frame after ``p`` may leave by at most ``min(1, k / ramp)`` of that
+    (a joint just lost cannot have gone far).
     """
     x = np.asarray(positions, dtype=np.float64)
     ref = np.zeros_like(x) if reference is None else np.asarray(reference, dtype=np.float64)
@@ -139,6 +142,9 @@ def limit_excursion(
     a_p = np.where(hp, _rms(np.maximum(pc - horizon, 0), pc + 1, yp), 0.0)
     a_n = np.where(hn, _rms(nc, np.minimum(nc + horizon + 1, T_len), yn), 0.0)
     cap = gain * np.maximum(a_p, a_n) + floor
+    if ramp > 0:
+        since = np.arange(T_len)[:, None] - prev
+        cap = np.where(hp & ~hn, cap * np.minimum(1.0, since / float(ramp)), cap)
     d = y - base
     norm = np.linalg.norm(d, axis=2)
     scale = np.where(norm > cap, cap / np.maximum(norm, _EPS), 1.0)

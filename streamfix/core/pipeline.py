@@ -50,7 +50,11 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    isometry [+ wavelet]) run on the cleaned window, where spatial correlation across
    joints beats temporal interpolation over 10-60 frame gaps. The solver's offset from
    the observations at each gap's two ends is ramped linearly across the gap
-   (``boundary_correction``), so a filled run meets its neighbours without a jump.
+   (``boundary_correction``), so a filled run meets its neighbours without a jump. A gap
+   still open at the window's newest frames has no far end: its fill is kept near the
+   joint's last pose relative to the limb's anchor, a bound that widens over its first
+   half second (``open_gap_gain``, ``open_gap_ramp_s``; the streaming engine publishes
+   those newest frames, where the unanchored solve jumped tens of centimetres).
    Observed joint-frames keep the robust stage's values. Skipped when nothing is
    missing: run after outlier removal on complete data the solver changed AJE by
    -5 % .. +400 % (it only helps a little at 80 %), and run on the raw input from the
@@ -90,6 +94,7 @@ from scipy.ndimage import correlate1d
 
 from . import alm, kernels
 from .filters import median_savgol, running_median
+from .excursion import EXCURSION_GAIN, anchor_reference, limit_excursion, parents_from_bones
 from .interpolate import continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
 from .robust_stats import nanmedian
@@ -118,6 +123,10 @@ class PipelineConfig:
     solver_tol: float = 1e-5
     boundary_correction: bool = True
     short_gap_s: float = 0.1  # every gap at most this long (s): local quadratic across it, no solver
+    # a gap still open at the window's end stays near the joint's last pose (see _limit_open_gaps):
+    # within open_gap_gain x its recent range of motion (None = off), a bound reached over open_gap_ramp_s
+    open_gap_gain: float | None = EXCURSION_GAIN
+    open_gap_ramp_s: float = 0.5
     # stage 3: smoothing matched to the noise level and rate
     smooth_floor_m: float = 1e-4
     white_noise_ratio: float = 1.9  # at or below: smooth fully
@@ -536,6 +545,30 @@ def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass):
     project = kernels.project_bone_lengths_pbd if kernels.COMPILED else project_bone_lengths_pbd
     return project(positions, bones, bone_lengths, iterations, inverse_mass)
 # --------------------------------------------------------------------------- the pipeline
+def _limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rate_hz: float,
+                     gain: float, ramp_s: float) -> np.ndarray:
+    """``filled`` ``(T, J, 3)`` m with each gap still open at the window's end kept within
+    ``gain`` times the joint's range of motion over the last second of its last observed
+    pose, relative to the limb's anchor, a bound that grows from 0 over the gap's first
+    ``ramp_s`` seconds (:func:`streamfix.core.excursion.limit_excursion`).
+
+    Why: with no far end, the low-rank solve places a joint that has just vanished from
+    the other joints alone, and that placement is not tied to where the joint was a frame
+    before: an arm lost at a walking body's newest frames jumped 36-54 cm in one frame
+    (CMU 131_01), and the streaming engine's clean output (0.5 s lookahead) blends those
+    newest frames in. Closed gaps are the boundary correction's.
+    """
+    seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
+    open_run = ~obs & ~seen_after & np.logical_or.accumulate(obs, axis=0)
+    if not open_run.any():
+        return filled
+    n_joints = obs.shape[1]
+    ref = anchor_reference(filled, obs, parents_from_bones(bones, n_joints)) if len(bones) else None
+    horizon = max(1, int(round(rate_hz)))  # 1 s of the joint's observed motion
+    return limit_excursion(filled, obs, open_run, horizon, gain=gain, reference=ref,
+                           ramp=max(1, int(round(ramp_s * rate_hz))))
+
+
 def clean_window(
     positions: np.ndarray,
     confidence: np.ndarray | None,
@@ -656,6 +689,8 @@ def clean_window(
                 # linearly across the gap, so a filled run meets its neighbours without a jump
                 offset, _ = interpolate_linear(np.where(obs3, cleaned - filled, np.nan), obs)
                 filled = filled + np.nan_to_num(offset)
+            if cfg.open_gap_gain is not None:
+                filled = _limit_open_gaps(filled, obs, bones, rate_hz, cfg.open_gap_gain, cfg.open_gap_ramp_s)
         if cfg.use_solver:
             blackout = ~obs.any(axis=1)
             if blackout.any():

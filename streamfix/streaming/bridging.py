@@ -116,6 +116,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..core.excursion import EXCURSION_GAIN  # bridged samples' bound (core/excursion.py)
 from ..core.interpolate import missing_run_lengths
 from ..skeletons import Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
@@ -146,9 +147,6 @@ MIN_HISTORY_S = 3.0
 """Seconds of clean history (with the joints to fill observed) before PCA is trusted."""
 FILL_CONFIDENCE = 0.25
 """Confidence of a bridged sample as the solver sees it (below 'inferred' 0.5)."""
-EXCURSION_GAIN = 0.35
-"""Bridged samples stay within this many times the joint's own recent range of motion
-of hold/linear (:func:`streamfix.core.excursion.limit_excursion`; None = off)."""
 EXCURSION_SOURCES = ("pca",)
 """Fill sources whose samples the excursion limit applies to (every joint)."""
 PRIOR_LIMITED_LIMBS = ("left_arm", "right_arm")
