@@ -554,9 +554,10 @@ def _limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rat
 
     Why: with no far end, the low-rank solve places a joint that has just vanished from
     the other joints alone, and that placement is not tied to where the joint was a frame
-    before: an arm lost at a walking body's newest frames jumped 36-54 cm in one frame
-    (CMU 131_01), and the streaming engine's clean output (0.5 s lookahead) blends those
-    newest frames in. Closed gaps are the boundary correction's.
+    before: an arm lost at a walking body's newest frames came out 32-42 cm from where it
+    had been one frame earlier (CMU 131_01, ``tests/test_open_gaps.py``), and the streaming
+    engine's clean output (0.5 s lookahead) blends those newest frames in. Closed gaps are
+    the boundary correction's.
     """
     seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
     open_run = ~obs & ~seen_after & np.logical_or.accumulate(obs, axis=0)
