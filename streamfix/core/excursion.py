@@ -20,11 +20,13 @@ import numpy as np
 
 from .interpolate import continuity_baseline
 
-__all__ = ["EXCURSION_GAIN", "limit_excursion", "anchor_reference", "parents_from_bones", "travel_speed"]
+__all__ = ["EXCURSION_GAIN", "EXCURSION_HORIZON_S", "limit_excursion", "anchor_reference", "parents_from_bones", "travel_speed"]
 
 EXCURSION_GAIN = 0.35
 """A fill may leave its continuity baseline (hold / linear) by at most this many times
 the joint's own recent range of motion (see :func:`limit_excursion`)."""
+EXCURSION_HORIZON_S = 1.0
+"""Seconds of the joint's observed samples next to a gap that set its range of motion."""
 
 _EPS = 1e-12
 

@@ -94,8 +94,9 @@ from scipy.ndimage import correlate1d
 
 from . import alm, kernels
 from .filters import median_savgol, running_median
-from .excursion import EXCURSION_GAIN, anchor_reference, limit_excursion, parents_from_bones
-from .interpolate import continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths
+from .excursion import EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion, parents_from_bones
+from .interpolate import (continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths,
+                          neighbour_observations)
 from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
 from .robust_stats import nanmedian
 
@@ -548,9 +549,9 @@ def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass):
 def _limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rate_hz: float,
                      gain: float, ramp_s: float) -> np.ndarray:
     """``filled`` ``(T, J, 3)`` m with each gap still open at the window's end kept within
-    ``gain`` times the joint's range of motion over the last second of its last observed
-    pose, relative to the limb's anchor, a bound that grows from 0 over the gap's first
-    ``ramp_s`` seconds (:func:`streamfix.core.excursion.limit_excursion`).
+    ``gain`` times the joint's range of motion over ``EXCURSION_HORIZON_S`` (1 s) from its
+    last observed pose, relative to the limb's anchor, a bound that grows from 0 over the
+    gap's first ``ramp_s`` seconds (:func:`streamfix.core.excursion.limit_excursion`).
 
     Why: with no far end, the low-rank solve places a joint that has just vanished from
     the other joints alone, and that placement is not tied to where the joint was a frame
@@ -559,13 +560,13 @@ def _limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rat
     engine's clean output (0.5 s lookahead) blends those newest frames in. Closed gaps are
     the boundary correction's.
     """
-    seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
-    open_run = ~obs & ~seen_after & np.logical_or.accumulate(obs, axis=0)
+    prev, nxt = neighbour_observations(obs)
+    open_run = ~obs & (prev >= 0) & (nxt == obs.shape[0])  # seen before, not after
     if not open_run.any():
         return filled
     n_joints = obs.shape[1]
     ref = anchor_reference(filled, obs, parents_from_bones(bones, n_joints)) if len(bones) else None
-    horizon = max(1, int(round(rate_hz)))  # 1 s of the joint's observed motion
+    horizon = max(1, int(round(EXCURSION_HORIZON_S * rate_hz)))
     return limit_excursion(filled, obs, open_run, horizon, gain=gain, reference=ref,
                            ramp=max(1, int(round(ramp_s * rate_hz))))
 

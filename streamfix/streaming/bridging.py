@@ -116,7 +116,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..core.excursion import EXCURSION_GAIN  # bridged samples' bound (core/excursion.py)
+from ..core.excursion import (EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion,
+                              parents_from_bones, travel_speed)
 from ..core.interpolate import missing_run_lengths
 from ..skeletons import Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
@@ -156,8 +157,6 @@ TRAVEL_SPEED_MPS = 0.5
 """... unless the body travels at this net speed (m/s) or faster over the context and window
 (:func:`streamfix.core.excursion.travel_speed`): then the arms swing with the gait, which the
 rest of the body does tell the prior (None = always limited)."""
-EXCURSION_HORIZON_S = 1.0
-"""Seconds of the joint's observed samples next to a gap that set its range of motion."""
 VERIFY_HISTORY_S = 1.0
 """Seconds of clean history a body needs before the prior's fill may take the place of the
 sensor's inferred samples it is checked against (``verify_inferred``): at a stream's start
@@ -428,8 +427,6 @@ class BridgingWindowSolver:
             # keep each model fill within the joint's recent range of motion of its
             # continuity baseline (hold from the last observed sample; linear once the
             # far end is in the window): see core/excursion.py
-            from ..core.excursion import anchor_reference, limit_excursion, parents_from_bones
-
             full = ext.copy()
             full[C:][done] = out[done]
             fmask = np.zeros_like(ext_obs)
@@ -456,8 +453,6 @@ class BridgingWindowSolver:
         """True when the body's net speed over ``positions`` reaches ``travel_speed_mps``."""
         if self.travel_speed_mps is None:
             return False
-        from ..core.excursion import travel_speed
-
         return travel_speed(positions, observed, rate_hz) >= self.travel_speed_mps
 
     def _history_ok(self, history: np.ndarray, joints: np.ndarray, rate_hz: float) -> bool:

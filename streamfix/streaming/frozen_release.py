@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.excursion import parents_from_bones
 from ..core.interpolate import run_labels
 from ..skeletons import Skeleton
 
@@ -91,7 +92,6 @@ def runs_touching(mask: np.ndarray, seeds: np.ndarray) -> np.ndarray:
 def limb_layout(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """``((J,) bool, (J,) int)``: the joints below a limb's root (their pose relative to
     the parent changes as the person moves) and each joint's left/right twin."""
-    from ..core.excursion import parents_from_bones
     from ..limbs import limb_groups, mirror_index
 
     parents = parents_from_bones(skeleton.bone_array, skeleton.n_joints)
@@ -116,7 +116,6 @@ def frozen_release(
     tracked sample of the joint (:func:`streamfix.core.inferred.tracked_proximity`), and
     whole rigid inferred runs (the twin not asked again) that contain a sample the
     previous window released (``released_before``, already shifted to this window's frames)."""
-    from ..core.excursion import parents_from_bones
     from ..core.frozen import frozen_inferred
     from ..core.inferred import tracked_proximity
 
