@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HANDOVER_S", "OUTPUT_SMOOTH_S", "crossfade_frames", "handover_frames", "handover_weights",
+__all__ = ["FILL_DISTANCE_M", "FILL_SMOOTH_S", "HANDOVER_S", "OUTPUT_SMOOTH_S", "crossfade_frames", "handover_frames", "handover_weights",
            "next_window_end", "smooth_blended", "window_ends"]
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
 OUTPUT_SMOOTH_S = 1.0 / 30.0  # binomial half-width of the output smoothing: 1 frame at 30 Hz = the 5-tap twiced kernel
+# A joint-frame the windows recovered and placed at least FILL_DISTANCE_M from the sensor's
+# sample (or that had none) is the model's fill, not a measurement: the sensor errors it
+# replaces (a broken leg, a lost hand) are decimetres, its noise centimetres
+# (docs/SENSOR_ERRORS.md). Its frame-to-frame change is hand-over jitter, not motion, so the
+# output smooths it with the wider half-width FILL_SMOOTH_S (4 frames at 30 Hz: 17 taps).
+FILL_DISTANCE_M = 0.10
+FILL_SMOOTH_S = 4.0 / 30.0
 
 
 def next_window_end(end: int, window: int, hop: int, startup_hop: int, origin: int) -> int:

@@ -104,6 +104,7 @@ class Body:
         self.live = np.full((cap, J, 3), np.nan)
         self.live_rec = np.zeros((cap, J), dtype=bool)
         self.conf = np.zeros((cap, J))
+        self.raw = np.full((cap, J, 3), np.nan)  # the sensor's sample (NaN = none), for engine._smooth_output
         self.valid = np.zeros((cap, J), dtype=bool)
         self.present = np.zeros(cap, dtype=bool)
         self.count = 0  # frames in the timeline

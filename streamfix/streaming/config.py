@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .blending import HANDOVER_S, OUTPUT_SMOOTH_S, crossfade_frames, handover_frames
+from .blending import FILL_SMOOTH_S, HANDOVER_S, OUTPUT_SMOOTH_S, crossfade_frames, handover_frames
 from .live import LiveConfig
 
 __all__ = [
@@ -82,6 +82,9 @@ class EngineConfig:
     output where windows found sensor noise (``h`` frames at ``rate_hz`` give a ``4 h + 1``
     tap kernel, :func:`streamfix.core.filters.twiced_binomial_taps`; 0 = none): the
     frame-to-frame jitter that window estimates and their hand-overs leave.
+    fill_smooth_s: the same for joint-frames that are the model's fill rather than a
+    measurement (:data:`streamfix.streaming.blending.FILL_DISTANCE_M`); at least
+    ``output_smooth_s`` (equal = no wider smoothing; none when ``output_smooth_s`` is 0).
     """
 
     window: int | None = None
@@ -109,6 +112,7 @@ class EngineConfig:
     handover_s: float = HANDOVER_S
     startup_hop: int | None = None
     output_smooth_s: float = OUTPUT_SMOOTH_S
+    fill_smooth_s: float = FILL_SMOOTH_S
 
     @classmethod
     def for_files(cls, rate_hz: float = 30.0, **settings: Any) -> "EngineConfig":
@@ -146,6 +150,9 @@ class EngineConfig:
         object.__setattr__(self, "hop", H)
         if not (np.isfinite(self.output_smooth_s) and self.output_smooth_s >= 0):
             raise ValueError(f"output_smooth_s must be >= 0 s, got {self.output_smooth_s}")
+        if not (np.isfinite(self.fill_smooth_s) and self.fill_smooth_s >= self.output_smooth_s):
+            raise ValueError(f"fill_smooth_s must be >= output_smooth_s ({self.output_smooth_s} s), "
+                             f"got {self.fill_smooth_s}")
         if not (np.isfinite(self.handover_s) and self.handover_s > 0):
             raise ValueError(f"handover_s must be a positive number of seconds, got {self.handover_s}")
         W, H, L = self.window, self.hop, self.lookahead
@@ -183,6 +190,11 @@ class EngineConfig:
     def output_smooth_frames(self) -> int:
         """The binomial half-width of the clean output's smoothing in frames (0 = none)."""
         return int(round(self.output_smooth_s * self.rate_hz))
+
+    @property
+    def fill_smooth_frames(self) -> int:
+        """The binomial half-width of the smoothing of fills in frames (see ``fill_smooth_s``)."""
+        return int(round(self.fill_smooth_s * self.rate_hz))
 
     @property
     def hop_limit(self) -> int:

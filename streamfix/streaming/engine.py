@@ -134,7 +134,7 @@ from ..core.filters import twiced_binomial_taps
 from ..frames import BodyFrame, SkeletonFrame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
-from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end, smooth_blended
+from .blending import FILL_DISTANCE_M, HANDOVER_S, crossfade_frames, handover_weights, next_window_end, smooth_blended
 from .bone_lengths import LengthSources, record_raw_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,
@@ -238,6 +238,7 @@ class StreamEngine:
         self._last_iterations = 0
         self._first_solver_error: str | None = None  # what the first failed window raised
         self._output_taps = twiced_binomial_taps(self.cfg.output_smooth_frames)  # see _smooth_output
+        self._fill_taps = twiced_binomial_taps(self.cfg.fill_smooth_frames)
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._inflight = 0  # submitted, not finished (threaded)
@@ -479,6 +480,7 @@ class StreamEngine:
                     body.live[k] = np.nan
                     body.live_rec[k] = True
                 body.conf[k] = conf
+                body.raw[k] = pos
                 body.valid[k] = valid
                 body.present[k] = True
                 body.absent = 0
@@ -493,6 +495,7 @@ class StreamEngine:
                 body.live[k] = np.nan
                 body.live_rec[k] = True
                 body.conf[k] = 0.0
+                body.raw[k] = np.nan
                 body.valid[k] = False
                 body.present[k] = False
                 body.absent += 1
@@ -820,6 +823,36 @@ class StreamEngine:
         usable = have[:, None] & (body.den[rows] > 0)
         body.smooth[mid] = share * smooth_blended(body.mean[rows], usable, taps) + (1.0 - share) * body.mean[mid]
         body.smooth_for[mid] = frames[h:len(frames) - h]
+        self._smooth_fills(body, lo, end, share)
+
+    def _smooth_fills(self, body: Body, lo: int, end: int, share: np.ndarray) -> None:
+        """Smooth the fills among frames ``lo .. end - 1`` with the wider ``fill_smooth_s`` kernel.
+
+        A fill is a joint-frame the windows mostly marked recovered and placed at least
+        :data:`~streamfix.streaming.blending.FILL_DISTANCE_M` from the sensor's sample (or
+        that had none): the model's estimate, whose frame-to-frame changes are window
+        hand-overs, not motion (on UI-PRMD, ``serve``'s jitter is mostly the legs the sensor
+        lost). Measurements, noisy or corrected by a few centimetres, keep the narrow
+        kernel, so jitter on tracked joints is not traded for lag. Weighted by the noise
+        share like :meth:`_smooth_output`.
+        """
+        taps = self._fill_taps
+        h = len(taps) // 2
+        if len(taps) <= len(self._output_taps):
+            return
+        frames = np.arange(lo - h, end + h)
+        rows = frames % body.cap
+        mid = rows[h:len(rows) - h]
+        den = body.den[mid]
+        with np.errstate(invalid="ignore"):
+            near = np.linalg.norm(body.mean[mid] - body.raw[mid], axis=2) < FILL_DISTANCE_M  # NaN raw: not near
+        fill = (body.recw[mid] > 0.5 * den) & (den > 0) & ~near
+        if not fill.any():
+            return
+        have = (frames >= 0) & (frames < end) & body.present[rows]
+        usable = have[:, None] & (body.den[rows] > 0)
+        wide = share * smooth_blended(body.mean[rows], usable, taps) + (1.0 - share) * body.mean[mid]
+        body.smooth[mid] = np.where(fill[..., None], wide, body.smooth[mid])
 
     def _finalise(self, st: StreamState, body: Body) -> None:
         """Move the body's frames whose clean value can no longer change to the stream."""
