@@ -27,7 +27,7 @@ from scipy.ndimage import uniform_filter1d
 
 from .interpolate import missing_run_lengths, run_labels
 
-__all__ = ["articulation", "frozen_inferred", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S",
+__all__ = ["articulation", "frozen_inferred", "frozen_and_rigid", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S",
            "MIN_DECIDING_BONE_M"]
 
 RIGID_M = 0.004
@@ -147,15 +147,38 @@ def frozen_inferred(
     seated user's legs); beside a moving twin, the sensor's guess. A twin without a
     measure (missing) does not stop the decision.
     """
+    return frozen_and_rigid(positions, inferred, parents, limb_joints, rate_hz, rigid_m=rigid_m, span_s=span_s,
+                            min_run_s=min_run_s, min_bone_m=min_bone_m, mirror=mirror, twin_bends_m=twin_bends_m)[0]
+
+
+def frozen_and_rigid(
+    positions: np.ndarray,
+    inferred: np.ndarray,
+    parents: np.ndarray,
+    limb_joints: np.ndarray,
+    rate_hz: float,
+    *,
+    rigid_m: float = RIGID_M,
+    span_s: float = ARTICULATION_SPAN_S,
+    min_run_s: float = MIN_FROZEN_S,
+    min_bone_m: float = MIN_DECIDING_BONE_M,
+    mirror: np.ndarray | None = None,
+    twin_bends_m: float = TWIN_BENDS_M,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(frozen, rigid)`` ``(T, J)`` bool: :func:`frozen_inferred`'s samples, and the same
+    decision without the twin test (the runs that are rigid whatever the twin does), from one
+    articulation measure: the streaming release needs both (streaming/frozen_release.py).
+    """
     x = np.asarray(positions, dtype=np.float64)
     inf = np.asarray(inferred, dtype=bool) & np.isfinite(x).all(axis=2)
     limbs = np.asarray(limb_joints, dtype=bool)
     T, J = inf.shape
     out = np.zeros_like(inf)
+    rigid = np.zeros_like(inf)
     min_run = max(2, int(round(min_run_s * rate_hz)))
     cand = inf & limbs[None, :] & (missing_run_lengths(~inf) >= min_run)
     if not cand.any():
-        return out
+        return out, rigid
     par = np.asarray(parents, dtype=np.intp)
     rel = np.linalg.norm(x - x[:, np.maximum(par, 0)], axis=2)
     fin = np.isfinite(rel)
@@ -163,7 +186,7 @@ def frozen_inferred(
     deciding = bone >= min_bone_m
     runs = (cand & deciding[None, :]).T  # (J, T)
     if not runs.any():  # the short bones below follow a frozen parent only
-        return out
+        return out, rigid
     cols = np.flatnonzero(runs.any(axis=1))
     if mirror is not None:
         cols = np.union1d(cols, np.asarray(mirror, dtype=np.intp)[cols])
@@ -182,6 +205,7 @@ def frozen_inferred(
         whole = _run_medians(art.T, label, n_runs)
         med = np.where(np.isfinite(med), med, whole)
         frozen_run = np.concatenate([[False], med < rigid_m])  # NaN (no measure): not frozen
+        rigid |= frozen_run[label].T
         if mirror is not None:
             # the same frames of the mirror joint: a limb held still beside a still twin is a
             # person holding still; beside a moving twin, the sensor's guess
@@ -189,10 +213,11 @@ def frozen_inferred(
             frozen_run[1:] &= ~(twin_med < twin_bends_m)  # NaN (twin not measured): no objection
         out |= frozen_run[label].T
     followers = np.flatnonzero(limbs & ~deciding & (par >= 0))
-    for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)
-        new = inf[:, followers] & out[:, par[followers]] & ~out[:, followers]
-        if not new.any():
-            break
-        out[:, followers] |= new
-    return out
+    for mask in (out, rigid):
+        for _ in range(len(followers)):  # parents first, whatever the joint order (chains are short)
+            new = inf[:, followers] & mask[:, par[followers]] & ~mask[:, followers]
+            if not new.any():
+                break
+            mask[:, followers] |= new
+    return out, rigid
 

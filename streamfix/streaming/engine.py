@@ -809,50 +809,48 @@ class StreamEngine:
         protocol), where it would only add bias, is left alone.
         """
         taps = self._output_taps
-        h = len(taps) // 2
-        if h < 1:
+        if len(taps) < 3:
             return
-        frames = np.arange(lo - h, end + h)
-        rows = frames % body.cap
-        mid = rows[h:len(rows) - h]
+        frames = np.arange(lo, end)
+        mid = frames % body.cap
         share = body.noise[mid][..., None]
         if not share.any():  # exact data: the blended values stand (no row holds a smoothed value)
             body.smooth_for[mid] = -1
             return
-        have = (frames >= 0) & (frames < end) & body.present[rows]
-        usable = have[:, None] & (body.den[rows] > 0)
-        body.smooth[mid] = share * smooth_blended(body.mean[rows], usable, taps) + (1.0 - share) * body.mean[mid]
-        body.smooth_for[mid] = frames[h:len(frames) - h]
-        self._smooth_fills(body, lo, end, share)
+        mean = body.mean[mid]
+        body.smooth[mid] = share * self._smoothed(body, lo, end, taps) + (1.0 - share) * mean
+        body.smooth_for[mid] = frames
+        # the model's fills get the wider kernel (see _fills)
+        fill = self._fills(body, mid) if len(self._fill_taps) > len(taps) else None
+        if fill is not None and fill.any():
+            wide = share * self._smoothed(body, lo, end, self._fill_taps) + (1.0 - share) * mean
+            body.smooth[mid] = np.where(fill[..., None], wide, body.smooth[mid])
 
-    def _smooth_fills(self, body: Body, lo: int, end: int, share: np.ndarray) -> None:
-        """Smooth the fills among frames ``lo .. end - 1`` with the wider ``fill_smooth_s`` kernel.
-
-        A fill is a joint-frame the windows mostly marked recovered and placed at least
-        :data:`~streamfix.streaming.blending.FILL_DISTANCE_M` from the sensor's sample (or
-        that had none): the model's estimate, whose frame-to-frame changes are window
-        hand-overs, not motion (on UI-PRMD, ``serve``'s jitter is mostly the legs the sensor
-        lost). Measurements, noisy or corrected by a few centimetres, keep the narrow
-        kernel, so jitter on tracked joints is not traded for lag. Weighted by the noise
-        share like :meth:`_smooth_output`.
-        """
-        taps = self._fill_taps
+    @staticmethod
+    def _smoothed(body: Body, lo: int, end: int, taps: np.ndarray) -> np.ndarray:
+        """``(end - lo, J, 3)``: the blended values of frames ``lo .. end - 1`` smoothed by
+        ``taps`` (:func:`smooth_blended`; neighbours not blended yet, or absent, leave a
+        frame's value as it is)."""
         h = len(taps) // 2
-        if len(taps) <= len(self._output_taps):
-            return
         frames = np.arange(lo - h, end + h)
         rows = frames % body.cap
-        mid = rows[h:len(rows) - h]
-        den = body.den[mid]
-        with np.errstate(invalid="ignore"):
-            near = np.linalg.norm(body.mean[mid] - body.raw[mid], axis=2) < FILL_DISTANCE_M  # NaN raw: not near
-        fill = (body.recw[mid] > 0.5 * den) & (den > 0) & ~near
-        if not fill.any():
-            return
         have = (frames >= 0) & (frames < end) & body.present[rows]
         usable = have[:, None] & (body.den[rows] > 0)
-        wide = share * smooth_blended(body.mean[rows], usable, taps) + (1.0 - share) * body.mean[mid]
-        body.smooth[mid] = np.where(fill[..., None], wide, body.smooth[mid])
+        return smooth_blended(body.mean[rows], usable, taps)
+
+    @staticmethod
+    def _fills(body: Body, rows: np.ndarray) -> np.ndarray:
+        """``(n, J)`` bool: the model's fills among the body's ``rows``: joint-frames the
+        windows mostly marked recovered and placed at least
+        :data:`~streamfix.streaming.blending.FILL_DISTANCE_M` from the sensor's sample (or
+        that had none). Their frame-to-frame changes are window hand-overs, not motion (on
+        UI-PRMD, ``serve``'s jitter is mostly the legs the sensor lost), so they get the
+        wider ``fill_smooth_s`` kernel; measurements, noisy or corrected by a few
+        centimetres, keep the narrow one, so jitter on tracked joints is not traded for lag."""
+        den = body.den[rows]
+        with np.errstate(invalid="ignore"):
+            near = np.linalg.norm(body.mean[rows] - body.raw[rows], axis=2) < FILL_DISTANCE_M  # NaN raw: not near
+        return (body.recw[rows] > 0.5 * den) & (den > 0) & ~near
 
     def _finalise(self, st: StreamState, body: Body) -> None:
         """Move the body's frames whose clean value can no longer change to the stream."""

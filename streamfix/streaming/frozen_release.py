@@ -116,7 +116,7 @@ def frozen_release(
     tracked sample of the joint (:func:`streamfix.core.inferred.tracked_proximity`), and
     whole rigid inferred runs (the twin not asked again) that contain a sample the
     previous window released (``released_before``, already shifted to this window's frames)."""
-    from ..core.frozen import frozen_inferred
+    from ..core.frozen import frozen_and_rigid
     from ..core.inferred import tracked_proximity
 
     conf = np.asarray(confidence, dtype=np.float64)
@@ -126,11 +126,10 @@ def frozen_release(
     limbs, mirror = layout
     x = np.asarray(positions, dtype=np.float64)
     parents = parents_from_bones(bones, x.shape[1])
-    frozen = frozen_inferred(x, inferred, parents, limbs, rate_hz, mirror=mirror)
+    frozen, rigid = frozen_and_rigid(x, inferred, parents, limbs, rate_hz, mirror=mirror)
     release = frozen & (tracked_proximity(conf >= 1.0, rate_hz) > 0)
     if released_before is not None and released_before.shape == frozen.shape and released_before.any():
         # a run already judged a guess stays one while it stays rigid, whether or not the
         # twin still bends (the twin test tells a guess from a limb held still at its start)
-        rigid = frozen_inferred(x, inferred, parents, limbs, rate_hz, mirror=None)
         release |= runs_touching(rigid, released_before)
     return release
