@@ -10,7 +10,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["BodyFrame", "SkeletonFrame"]
+from .skeletons import Skeleton
+
+__all__ = ["BodyFrame", "SkeletonFrame", "check_frame"]
 
 
 @dataclass
@@ -52,3 +54,32 @@ class SkeletonFrame:
     filled: bool = False
     epoch: int = 0
     dropped: int = 0
+
+
+def check_frame(frame: SkeletonFrame, skeleton: Skeleton) -> None:
+    """Raise ValueError naming what is wrong when ``frame`` does not fit ``skeleton``: another
+    skeleton name, a body whose positions are not ``(J, 3)`` or whose confidences are not
+    ``(J,)`` (with the expected J), or a body id that appears twice."""
+    if frame.skeleton != skeleton.name:
+        raise ValueError(
+            f"stream {frame.stream_id!r} seq {frame.seq}: skeleton {frame.skeleton!r}, "
+            f"this engine cleans {skeleton.name!r}"
+        )
+    J = skeleton.n_joints
+    ids = set()
+    for b in frame.bodies:
+        pos = np.asarray(b.positions)
+        conf = np.asarray(b.confidence)
+        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] != J:
+            raise ValueError(
+                f"stream {frame.stream_id!r} seq {frame.seq} body {b.body_id}: expected {J} joints "
+                f"({skeleton.name}) as ({J}, 3) positions, got shape {pos.shape}"
+            )
+        if conf.shape != (J,):
+            raise ValueError(
+                f"stream {frame.stream_id!r} seq {frame.seq} body {b.body_id}: expected {J} "
+                f"confidences ({skeleton.name}), got shape {conf.shape}"
+            )
+        if b.body_id in ids:
+            raise ValueError(f"stream {frame.stream_id!r} seq {frame.seq}: body {b.body_id} appears twice")
+        ids.add(b.body_id)

@@ -98,13 +98,13 @@ class Body:
         self.mean = np.zeros((cap, J, 3))
         self.den = np.zeros((cap, J))
         self.recw = np.zeros((cap, J))
-        self.smooth = np.zeros((cap, J, 3))  # the blended mean smoothed over time (engine._smooth_output)
+        self.smooth = np.zeros((cap, J, 3))  # the blended mean smoothed over time (overlap_add.smooth_output)
         self.smooth_for = np.full(cap, -1, dtype=np.int64)  # the timeline frame each smooth row holds
         self.noise = np.zeros((cap, J))  # the windows' noise_share, blended like the positions
         self.live = np.full((cap, J, 3), np.nan)
         self.live_rec = np.zeros((cap, J), dtype=bool)
         self.conf = np.zeros((cap, J))
-        self.raw = np.full((cap, J, 3), np.nan)  # the sensor's sample (NaN = none), for engine._smooth_output
+        self.raw = np.full((cap, J, 3), np.nan)  # the sensor's sample (NaN = none), for overlap_add.fill_mask
         self.valid = np.zeros((cap, J), dtype=bool)
         self.present = np.zeros(cap, dtype=bool)
         self.count = 0  # frames in the timeline

@@ -7,6 +7,10 @@ job a :class:`LengthSources` snapshot; the estimate itself (two shorth modes ove
 scheduling a window) runs where the window is solved (:meth:`LengthSources.resolve`):
 in threaded mode on the worker, whose compiled kernels release the GIL, so the live
 path is not kept waiting. The result is the same as computing it at scheduling time.
+
+The body's clean output feeds a second memory (:func:`sample_clean_bones`): the median
+of its bone lengths, the fallback while the raw estimate is not trusted and the live
+path's lengths.
 """
 from __future__ import annotations
 
@@ -16,6 +20,7 @@ import numpy as np
 
 from ..core.isometry import length_mode_with_support, symmetric_lengths
 from .bodies import (
+    BONE_HISTORY_S,
     BONE_OWN_SUPPORT_S,
     BONE_PEAK_SHARE,
     BONE_SUPPORT_FRAMES,
@@ -24,7 +29,7 @@ from .bodies import (
     Body,
 )
 
-__all__ = ["LengthSources", "record_raw_bones", "raw_history_lengths"]
+__all__ = ["LengthSources", "length_sources", "record_raw_bones", "raw_history_lengths", "sample_clean_bones"]
 
 
 def record_raw_bones(body: Body, bones: np.ndarray) -> None:
@@ -114,3 +119,51 @@ class LengthSources:
             if raw is not None:
                 return raw
         return self.fallback
+
+
+def length_sources(body: Body, bones: np.ndarray, mirror_bones: np.ndarray, rate_hz: float,
+                   fixed_lengths: np.ndarray | None) -> LengthSources:
+    """What the body's bone lengths come from (resolved where the window is solved).
+
+    ``fixed_lengths`` if configured; else the shorth mode of the last ``BONE_MEMORY_S``
+    of raw input when well supported (:func:`raw_history_lengths`); else the median over
+    the body's last ``BONE_MEMORY_S`` (10 s) of *clean* output (robust: the window solver
+    already removed the outliers, while a median over raw corrupted input is biased by
+    several cm), once ``BONE_HISTORY_S`` (3 s) of it exist; before that, the lengths
+    remembered for a re-identified body, else None (the window solver estimates them
+    from its window). Measured on CMU 131 at 20 % corruption: per-window estimates only,
+    1.18-1.32x the whole-sequence AJE; clean history after 3 s, 1.11-1.12x.
+    """
+    if fixed_lengths is not None:
+        return LengthSources(None, None, mirror_bones, rate_hz, fixed_lengths)
+    need = min(max(1, int(round(BONE_HISTORY_S * rate_hz))), len(body.clean_bones))
+    if len(bones) and body.clean_bones_n >= need and body.clean_lengths is not None:
+        fallback = body.clean_lengths
+    else:
+        fallback = body.prior_lengths
+    if not len(bones):
+        return LengthSources(None, None, mirror_bones, rate_hz, fallback)
+    record_raw_bones(body, bones)
+    return LengthSources(body.raw_bones.copy(), body.raw_bones_seen.copy(), mirror_bones, rate_hz, fallback)
+
+
+def sample_clean_bones(body: Body, pos: np.ndarray, bones: np.ndarray, hop: int) -> np.ndarray | None:
+    """File one clean frame ``pos`` ``(J, 3)`` m into the body's clean-length memory.
+
+    Every ``hop`` frames the kept frames are measured in one array call (the same values
+    as frame by frame) and the median over the memory becomes ``body.clean_lengths``
+    (None while not finite); returns that median then (for the live path), else None.
+    """
+    body.clean_pending.append(pos.copy())  # the emitted frame may be changed by its receiver
+    body.clean_bones_n += 1
+    if body.clean_bones_n % hop:
+        return None
+    frames = np.stack(body.clean_pending)
+    body.clean_pending = []
+    lengths = np.linalg.norm(frames[:, bones[:, 1]] - frames[:, bones[:, 0]], axis=2)
+    n = body.clean_bones_n
+    body.clean_bones[np.arange(n - len(frames), n) % len(body.clean_bones)] = lengths
+    rows = body.clean_bones[: min(n, len(body.clean_bones))]
+    est = np.median(rows, axis=0)  # clean output is finite
+    body.clean_lengths = est if np.isfinite(est).all() else None
+    return est

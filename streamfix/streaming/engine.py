@@ -34,7 +34,7 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
 * where the windows report sensor noise (their ``info[NOISE_SHARE_KEY]``, blended like
   the positions; ``clean_window``'s stage-3 gate), the blended values are then smoothed
   over time by a short kernel that keeps quadratic motion (``output_smooth_s``,
-  :meth:`StreamEngine._smooth_output`): the hand-overs and the bone projection leave
+  :func:`~streamfix.streaming.overlap_add.smooth_output`): the hand-overs and the bone projection leave
   frame-to-frame jitter that no single window sees. The kernel's future frames are the
   newest window's values, so this adds no latency; exact data is left as blended.
 * frame ``n`` is emitted on ``clean`` when frame ``n + L`` has been pushed: the
@@ -120,6 +120,15 @@ no solved window covers fall back to their ``live`` value (flagged recovered whe
 live path recovered them). Input is never
 blocked or dropped; every input frame still appears once on ``clean``.
 :meth:`StreamEngine.metrics` reports the level, hop, iterations and counters.
+
+Where the parts live
+--------------------
+This module keeps the timeline: frames in, windows scheduled, frames finalised and
+emitted, bodies appearing and leaving. The rest is one concept per module: the body and
+stream records (:mod:`.bodies`), frame validation (:func:`streamfix.frames.check_frame`),
+bone lengths (:mod:`.bone_lengths`), solving one window (:mod:`.window_job`),
+overlap-add and output smoothing (:mod:`.overlap_add`, weights in :mod:`.blending`) and
+the overload policy (:mod:`.degradation`).
 """
 
 from __future__ import annotations
@@ -131,13 +140,13 @@ from typing import Any
 import numpy as np
 
 from ..core.filters import twiced_binomial_taps
-from ..frames import BodyFrame, SkeletonFrame
+from ..frames import BodyFrame, SkeletonFrame, check_frame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
-from .blending import FILL_DISTANCE_M, HANDOVER_S, crossfade_frames, handover_weights, next_window_end, smooth_blended
-from .bone_lengths import LengthSources, record_raw_bones
+from .blending import HANDOVER_S, handover_weights, next_window_end
+from .bone_lengths import LengthSources, length_sources, sample_clean_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
-    BONE_HISTORY_S,
+    BONE_HISTORY_S,  # noqa: F401
     BONE_MEMORY_S,  # noqa: F401
     BONE_OWN_SUPPORT_S,  # noqa: F401
     BONE_SUPPORT_FRAMES,  # noqa: F401
@@ -154,9 +163,12 @@ from .bodies import (  # the constants are re-exported: the engine's documented 
     output_confidence,
 )
 from .config import DEFAULT_HOP_S, DEFAULT_LOOKAHEAD_S, DEFAULT_WINDOW_S, EngineConfig  # noqa: F401
+from .degradation import Degradation
 from .histogram import Histogram
 from .live import LivePath
-from .solver_api import NOISE_SHARE_KEY, WindowOutput, WindowSolver
+from .overlap_add import blend_window
+from .solver_api import WindowOutput, WindowSolver
+from .window_job import solve_job
 from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations
 
 __all__ = [
@@ -213,13 +225,7 @@ class StreamEngine:
         self.streams: dict[str, StreamState] = {}
         threaded = self.cfg.threaded if threaded is None else bool(threaded)
         self.threaded = threaded
-        # degradation
-        self.level = 0
-        self.hop = self.cfg.hop
-        self._healthy = 0
-        self._done_at_change = 0
-        self._pending_at_change = 0
-        self._last_solve_s = 0.0
+        self.degradation = Degradation(self.cfg)
         # metrics
         self.counters: dict[str, int] = {
             k: 0
@@ -237,7 +243,7 @@ class StreamEngine:
         self.solve_hist = Histogram()
         self._last_iterations = 0
         self._first_solver_error: str | None = None  # what the first failed window raised
-        self._output_taps = twiced_binomial_taps(self.cfg.output_smooth_frames)  # see _smooth_output
+        self._output_taps = twiced_binomial_taps(self.cfg.output_smooth_frames)  # see overlap_add.smooth_output
         self._fill_taps = twiced_binomial_taps(self.cfg.fill_smooth_frames)
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
@@ -359,6 +365,16 @@ class StreamEngine:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @property
+    def level(self) -> int:
+        """Degradation level 0..3 (:class:`~streamfix.streaming.degradation.Degradation`)."""
+        return self.degradation.level
+
+    @property
+    def hop(self) -> int:
+        """The hop (frames) windows are scheduled with now (the configured one unless degraded)."""
+        return self.degradation.hop
+
     def metrics(self) -> dict:
         """Counters, histograms and the degradation state (plain data)."""
         m: dict[str, Any] = dict(self.counters)
@@ -370,7 +386,7 @@ class StreamEngine:
             degraded=self.level > 0,
             degrade_level=self.level,
             hop=self.hop,
-            max_iterations=self._iterations(),
+            max_iterations=self.degradation.iterations(),
             last_iterations=self._last_iterations,
             first_solver_error=self._first_solver_error,
             window=self.cfg.window,
@@ -385,35 +401,10 @@ class StreamEngine:
     # ------------------------------------------------------------------ validation
     def _validate(self, frame: SkeletonFrame) -> None:
         try:
-            self._check(frame)
+            check_frame(frame, self.skeleton)
         except ValueError:
             self.counters["frames_rejected"] += 1
             raise
-
-    def _check(self, frame: SkeletonFrame) -> None:
-        if frame.skeleton != self.skeleton.name:
-            raise ValueError(
-                f"stream {frame.stream_id!r} seq {frame.seq}: skeleton {frame.skeleton!r}, "
-                f"this engine cleans {self.skeleton.name!r}"
-            )
-        J = self.n_joints
-        ids = set()
-        for b in frame.bodies:
-            pos = np.asarray(b.positions)
-            conf = np.asarray(b.confidence)
-            if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] != J:
-                raise ValueError(
-                    f"stream {frame.stream_id!r} seq {frame.seq} body {b.body_id}: expected {J} joints "
-                    f"({self.skeleton.name}) as ({J}, 3) positions, got shape {pos.shape}"
-                )
-            if conf.shape != (J,):
-                raise ValueError(
-                    f"stream {frame.stream_id!r} seq {frame.seq} body {b.body_id}: expected {J} "
-                    f"confidences ({self.skeleton.name}), got shape {conf.shape}"
-                )
-            if b.body_id in ids:
-                raise ValueError(f"stream {frame.stream_id!r} seq {frame.seq}: body {b.body_id} appears twice")
-            ids.add(b.body_id)
 
     def _is_late(self, st: StreamState, frame: SkeletonFrame) -> bool:
         if st.last_in_seq is not None and int(frame.seq) <= st.last_in_seq:
@@ -525,41 +516,10 @@ class StreamEngine:
         return self._length_sources(body).resolve()
 
     def _length_sources(self, body: Body) -> LengthSources:
-        """What the body's bone lengths come from (resolved where the window is solved).
-
-        Fixed lengths if configured; else the shorth mode of the last ``BONE_MEMORY_S``
-        of raw input when well supported (:func:`~streamfix.streaming.bone_lengths.raw_history_lengths`);
-        else the median over the body's last ``BONE_MEMORY_S`` (10 s) of *clean* output
-        (robust: the window solver already removed the outliers, while a median over raw
-        corrupted input is biased by several cm), once ``BONE_HISTORY_S`` (3 s) of it
-        exist; before that, the lengths remembered for a re-identified body, else None
-        (the window solver estimates them from its window). Measured on CMU 131 at 20 %
-        corruption: per-window estimates only, 1.18-1.32x the whole-sequence AJE; clean
-        history after 3 s, 1.11-1.12x.
-        """
-        if self._fixed_lengths is not None:
-            return LengthSources(None, None, self._mirror_bones, self.cfg.rate_hz, self._fixed_lengths)
-        need = min(max(1, int(round(BONE_HISTORY_S * self.cfg.rate_hz))), len(body.clean_bones))
-        if len(self.bones) and body.clean_bones_n >= need and body.clean_lengths is not None:
-            fallback = body.clean_lengths
-        else:
-            fallback = body.prior_lengths
-        if not len(self.bones):
-            return LengthSources(None, None, self._mirror_bones, self.cfg.rate_hz, fallback)
-        record_raw_bones(body, self.bones)
-        return LengthSources(body.raw_bones.copy(), body.raw_bones_seen.copy(), self._mirror_bones,
-                             self.cfg.rate_hz, fallback)
+        """What the body's bone lengths come from (:func:`~streamfix.streaming.bone_lengths.length_sources`)."""
+        return length_sources(body, self.bones, self._mirror_bones, self.cfg.rate_hz, self._fixed_lengths)
 
     # ------------------------------------------------------------------ windows
-    def _iterations(self) -> int | None:
-        base = self.cfg.max_iterations
-        if self.level == 0:
-            return base
-        lvl1 = self.cfg.degraded_iterations or (max(1, base // 2) if base else 10)
-        if self.level >= 3:
-            return max(1, lvl1 // 2)
-        return lvl1
-
     def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False,
                   hop_after: int | None = None) -> None:
         """Create the job for the window ending at ``end`` and solve/submit it; ``hop_after``:
@@ -571,7 +531,7 @@ class StreamEngine:
         self.counters["windows_scheduled"] += 1
         job = Job(
             body, win.start, win.end, win.positions.copy(), win.confidence.copy(),
-            self._length_sources(body), self._iterations(), final,
+            self._length_sources(body), self.degradation.iterations(), final,
         )
         job.hop_after = self.hop if hop_after is None else hop_after
         job.hop_before = end - body.last_scheduled_end if body.last_scheduled_end > 0 else job.hop_after
@@ -588,7 +548,8 @@ class StreamEngine:
         if not self.threaded:
             self._run_job(job)
             return
-        self._degrade_check()
+        if self.degradation.check(self._inflight, self._windows_due(), self._active_bodies(), self._done_total):
+            self.counters["degrade_events"] += 1
         if self._inflight >= self.cfg.max_pending_windows * self._windows_due() and not final:
             job.status = "skipped"
             self.counters["windows_skipped"] += 1
@@ -610,104 +571,16 @@ class StreamEngine:
         bodies = (b for st in self.streams.values() for b in st.bodies.values())
         return max(1.0, float(sum(startup if b.count < W else 1.0 for b in bodies)))
 
-    def _degrade_check(self) -> None:
-        """Overloaded when the worker cannot finish one window per body per hop.
-
-        Budgets scale with the number of tracked bodies: with N bodies, N windows are due
-        every hop (more while their first windows fill, :meth:`_windows_due`), so that many
-        windows in flight is normal and a body's window may take hop / N.
-        (Measured: an engine-wide "any window in flight" test degraded 12 bodies at
-        30 Hz to level 3 and skipped 53 windows although the solver used ~40 % of a core.)
-        """
-        if not self.cfg.degrade:
-            return
-        n = self._active_bodies()
-        budget_s = self.hop / self.cfg.rate_hz / n
-        overloaded = self._inflight > self._windows_due() or self._last_solve_s > budget_s
-        if overloaded:
-            self._healthy = 0
-            progressed = self._done_total > self._done_at_change or self._inflight > self._pending_at_change
-            if self.level < 3 and (progressed or self.level == 0):
-                self._set_level(self.level + 1)
-        elif self._last_solve_s < 0.5 * budget_s:
-            self._healthy += 1
-            if self.level > 0 and self._healthy >= self.cfg.recover_after:
-                self._set_level(self.level - 1)
-                self._healthy = 0
-
-    def _set_level(self, level: int) -> None:
-        if level > self.level:
-            self.counters["degrade_events"] += 1
-        self.level = level
-        self._done_at_change = self._done_total
-        self._pending_at_change = self._inflight
-        limit = self.cfg.hop_limit
-        if level >= 3:
-            self.hop = limit
-        elif level == 2:
-            self.hop = min(2 * self.cfg.hop, limit)
-        else:
-            self.hop = self.cfg.hop
-
     def _run_job(self, job: Job) -> None:
         """Solve one window (worker thread in threaded mode); sets the job's result."""
-        body = job.body
-        T = job.end - job.start
-        state = None
-        st_ = body.solver_state
-        if st_ is not None and T == self.cfg.window:
-            shift = job.end - body.solver_state_end
-            n_prev = getattr(st_, "n_frames", None)
-            if n_prev is None and hasattr(st_, "A"):
-                n_prev = st_.A.shape[0]
-            if 0 <= shift < T and n_prev == T:
-                try:
-                    state = st_.shifted(shift) if hasattr(st_, "shifted") else st_
-                except Exception:  # a state that cannot shift: solve cold
-                    state = None
-        if state is None and st_ is not None and hasattr(st_, "reframed"):
-            # windows of different lengths (a stream's first windows grow): no warm start,
-            # but what the state remembers per frame (the frozen-limb release) carries over
-            prev_start = body.solver_state_end - st_.n_frames
-            state = st_.reframed(job.start - prev_start, T)
         config = with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
-        kwargs: dict[str, Any] = {"state": state}
-        if self._history:
-            kwargs["history"] = job.history
-        if self._pass_skeleton:
-            kwargs["skeleton"] = self.skeleton
-        if config is not None:
-            kwargs["config"] = config
-        t0 = time.perf_counter()
-        try:
-            lengths = job.bone_lengths.resolve()  # here, not when scheduled: off the live path
-            res = self.solver(job.positions, job.confidence, self.bones, lengths, self.cfg.rate_hz, **kwargs)
-            pos = np.asarray(res.positions, dtype=np.float64)
-            if pos.shape != job.positions.shape:
-                raise ValueError(f"window solver returned {pos.shape}, expected {job.positions.shape}")
-            rec = getattr(res, "recovered", None)
-            rec = np.zeros(pos.shape[:2], dtype=bool) if rec is None else np.asarray(rec, dtype=bool)
-            job.result_pos, job.result_rec = pos, rec
-            job.n_iter = int(getattr(res, "iterations", 0) or 0)
-            info = getattr(res, "info", None) or {}
-            job.noise_share = float(np.clip(info.get(NOISE_SHARE_KEY, 0.0), 0.0, 1.0))
-            job.converged = bool(getattr(res, "converged", True))
-            bridged = getattr(res, "bridged", None)
-            if bridged:
-                with self._lock:
-                    for src, k in bridged.items():
-                        key = "bridge_errors" if src == "errors" else f"joints_bridged_{src}"
-                        self.counters[key] = self.counters.get(key, 0) + int(k)
-            new_state = getattr(res, "state", None)
-            body.solver_state = new_state
-            body.solver_state_end = job.end if new_state is not None else -1
-        except Exception as exc:  # a failing window must not lose the frames
-            job.error = f"{type(exc).__name__}: {exc}"
-            body.solver_state = None
-            body.solver_state_end = -1
-        job.solve_s = time.perf_counter() - t0
-        if job.status == "pending":
-            job.status = "done"
+        bridged = solve_job(job, self.solver, self.bones, self.cfg.rate_hz, self.cfg.window, config,
+                            pass_history=self._history, skeleton=self.skeleton if self._pass_skeleton else None)
+        if bridged:
+            with self._lock:
+                for src, k in bridged.items():
+                    key = "bridge_errors" if src == "errors" else f"joints_bridged_{src}"
+                    self.counters[key] = self.counters.get(key, 0) + int(k)
 
     def _worker(self) -> None:
         while True:
@@ -751,7 +624,7 @@ class StreamEngine:
             prev_end = body.last_processed_end
             body.last_processed_end = max(body.last_processed_end, job.end)
             if job.status == "done":
-                self._last_solve_s = job.solve_s
+                self.degradation.last_solve_s = job.solve_s
                 self.solve_hist.observe(job.solve_s)
                 if job.error is not None:
                     self.counters["solver_errors"] += 1
@@ -763,94 +636,9 @@ class StreamEngine:
                 self._last_iterations = job.n_iter
                 if not job.converged:
                     self.counters["solver_not_converged"] += 1
-                self._blend(body, job, prev_end)
+                blend_window(body, job, prev_end, self.cfg, self._output_taps, self._fill_taps)
                 if self.cfg.live_anchor and self.cfg.live_output and job.end == body.count and job.result_pos is not None:
                     body.live_path.anchor(job.result_pos[-3:])
-
-    def _blend(self, body: Body, job: Job, prev_end: int) -> None:
-        """Overlap-add: fold the window's solution into the frames it is due to.
-
-        Window ``e`` contributes to frame ``n`` iff ``n < e <= n + L + 1`` or, when the hop
-        was degraded beyond the lookahead, it is the first window covering ``n``
-        (``prev_end <= n``). This makes each frame's value independent of when its
-        windows finished (threaded and synchronous modes agree).
-        """
-        lo = max(job.start, body.final_upto, min(job.end - self.cfg.lookahead - 1, prev_end))
-        if lo >= job.end:
-            return
-        T = job.end - job.start
-        crossfade = crossfade_frames(self.cfg.handover_s, self.cfg.rate_hz)
-        w = handover_weights(job.end - np.arange(lo, job.end), self.cfg.lookahead, job.hop_after, crossfade, job.hop_before)
-        x = job.result_pos[lo - job.start:]
-        r = job.result_rec[lo - job.start:].astype(np.float64)
-        rows = np.arange(lo, job.end) % body.cap
-        finite = np.isfinite(x).all(axis=2)
-        wj = np.where(finite, w[:, None], 0.0)  # (n, J)
-        den = body.den[rows] + wj
-        frac = np.divide(wj, den, out=np.zeros_like(wj), where=den > 0)
-        mean = body.mean[rows]
-        body.mean[rows] = mean + frac[..., None] * (np.where(finite[..., None], x, mean) - mean)
-        body.recw[rows] = body.recw[rows] + wj * r
-        body.den[rows] = den
-        body.noise[rows] = body.noise[rows] + frac * (job.noise_share - body.noise[rows])
-        self._smooth_output(body, lo, job.end)
-
-    def _smooth_output(self, body: Body, lo: int, end: int) -> None:
-        """Smooth the blended values of frames ``lo .. end - 1`` (:func:`smooth_blended`,
-        the twiced binomial of half-width ``output_smooth_s``).
-
-        Run after each blend on the frames that window changed: a frame's smoothed value is
-        the one computed after the last window that reaches it, from its final neighbours
-        before it and the newest window's (provisional) values after it, so it depends on
-        the windows' order only and adds no latency. Frames without ``h`` blended
-        neighbours on both sides (a body's first and last frames) keep their value. The
-        smoothing is weighted by the windows' ``noise_share`` (blended like the positions):
-        what a window found to be sensor noise is smoothed; exact data (mocap, the paper's
-        protocol), where it would only add bias, is left alone.
-        """
-        taps = self._output_taps
-        if len(taps) < 3:
-            return
-        frames = np.arange(lo, end)
-        mid = frames % body.cap
-        share = body.noise[mid][..., None]
-        if not share.any():  # exact data: the blended values stand (no row holds a smoothed value)
-            body.smooth_for[mid] = -1
-            return
-        mean = body.mean[mid]
-        body.smooth[mid] = share * self._smoothed(body, lo, end, taps) + (1.0 - share) * mean
-        body.smooth_for[mid] = frames
-        # the model's fills get the wider kernel (see _fills)
-        fill = self._fills(body, mid) if len(self._fill_taps) > len(taps) else None
-        if fill is not None and fill.any():
-            wide = share * self._smoothed(body, lo, end, self._fill_taps) + (1.0 - share) * mean
-            body.smooth[mid] = np.where(fill[..., None], wide, body.smooth[mid])
-
-    @staticmethod
-    def _smoothed(body: Body, lo: int, end: int, taps: np.ndarray) -> np.ndarray:
-        """``(end - lo, J, 3)``: the blended values of frames ``lo .. end - 1`` smoothed by
-        ``taps`` (:func:`smooth_blended`; neighbours not blended yet, or absent, leave a
-        frame's value as it is)."""
-        h = len(taps) // 2
-        frames = np.arange(lo - h, end + h)
-        rows = frames % body.cap
-        have = (frames >= 0) & (frames < end) & body.present[rows]
-        usable = have[:, None] & (body.den[rows] > 0)
-        return smooth_blended(body.mean[rows], usable, taps)
-
-    @staticmethod
-    def _fills(body: Body, rows: np.ndarray) -> np.ndarray:
-        """``(n, J)`` bool: the model's fills among the body's ``rows``: joint-frames the
-        windows mostly marked recovered and placed at least
-        :data:`~streamfix.streaming.blending.FILL_DISTANCE_M` from the sensor's sample (or
-        that had none). Their frame-to-frame changes are window hand-overs, not motion (on
-        UI-PRMD, ``serve``'s jitter is mostly the legs the sensor lost), so they get the
-        wider ``fill_smooth_s`` kernel; measurements, noisy or corrected by a few
-        centimetres, keep the narrow one, so jitter on tracked joints is not traded for lag."""
-        den = body.den[rows]
-        with np.errstate(invalid="ignore"):
-            near = np.linalg.norm(body.mean[rows] - body.raw[rows], axis=2) < FILL_DISTANCE_M  # NaN raw: not near
-        return (body.recw[rows] > 0.5 * den) & (den > 0) & ~near
 
     def _finalise(self, st: StreamState, body: Body) -> None:
         """Move the body's frames whose clean value can no longer change to the stream."""
@@ -889,7 +677,10 @@ class StreamEngine:
                     pend.slots[body.body_id] = BodyFrame(body.body_id, pos, conf, rec)
                     pend.missing -= 1
                     self.counters["joints_recovered"] += int(rec.sum())
-                    self._sample_clean_bones(body, pos)
+                    if len(self.bones) and self._fixed_lengths is None:
+                        est = sample_clean_bones(body, pos, self.bones, self.cfg.hop)
+                        if est is not None and self.cfg.live_output:
+                            body.live_path.set_bone_lengths(est)
                 if self._history:  # observed samples of the clean output; row = timeline frame
                     body.hist[body.hist_n % len(body.hist)] = np.where(rec[:, None], np.nan, pos)
             elif self._history:  # absent: a NaN row keeps the history aligned with the timeline
@@ -897,32 +688,6 @@ class StreamEngine:
             if self._history:
                 body.hist_n += 1
             body.final_upto += 1
-
-    def _sample_clean_bones(self, body: Body, pos: np.ndarray) -> None:
-        """Bone lengths of one clean frame into the body's memory; every hop, their median
-        becomes the body's clean lengths. Frames are kept and measured once per hop, in one
-        array call (the same values as frame by frame)."""
-        if not len(self.bones) or self._fixed_lengths is not None:
-            return
-        body.clean_pending.append(pos.copy())  # the emitted frame may be changed by its receiver
-        body.clean_bones_n += 1
-        if body.clean_bones_n % self.cfg.hop == 0:
-            self._measure_clean_bones(body)
-            rows = body.clean_bones[: min(body.clean_bones_n, len(body.clean_bones))]
-            est = np.median(rows, axis=0)  # clean output is finite
-            body.clean_lengths = est if np.isfinite(est).all() else None
-            if self.cfg.live_output:
-                body.live_path.set_bone_lengths(est)
-
-    def _measure_clean_bones(self, body: Body) -> None:
-        """Bone lengths (m) of the clean frames kept since the last hop, into ``clean_bones``."""
-        if not body.clean_pending:
-            return
-        frames = np.stack(body.clean_pending)
-        body.clean_pending = []
-        lengths = np.linalg.norm(frames[:, self.bones[:, 1]] - frames[:, self.bones[:, 0]], axis=2)
-        n = body.clean_bones_n
-        body.clean_bones[np.arange(n - len(frames), n) % len(body.clean_bones)] = lengths
 
     def _emit(self, st: StreamState, out: list) -> None:
         while True:

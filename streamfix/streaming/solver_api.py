@@ -12,7 +12,7 @@ __all__ = ["NOISE_SHARE_KEY", "WindowOutput", "WindowSolver", "WindowSolverError
 
 NOISE_SHARE_KEY = "sensor_noise_share"
 """Key of a window solver's ``info``: in [0, 1], how much of the window is sensor noise
-that the engine may smooth at the output (:meth:`StreamEngine._smooth_output`); absent
+that the engine may smooth at the output (:func:`~streamfix.streaming.overlap_add.smooth_output`); absent
 = 0, the output is left as the solver gave it. ``clean_window`` writes its stage-3 gate."""
 
 WindowSolver = Callable[..., Any]
