@@ -43,6 +43,7 @@ DATA = (ROOT / ".." / "shared" / "data").resolve()
 import numpy as np  # noqa: E402
 
 from streamfix.core import pca_gapfill as pg  # noqa: E402
+from streamfix.core.pca_fill import pca_fill  # noqa: E402
 from streamfix.core.interpolate import interpolate_linear  # noqa: E402
 from streamfix.evaluation.long_gaps import make_gaps, run_blackout, run_long_gaps  # noqa: E402
 from streamfix.io import read_motion  # noqa: E402
@@ -68,9 +69,9 @@ def speed(repeat: int) -> tuple[bool, dict]:
     y = np.where(miss[..., None], np.nan, x)
     obs = ~miss
     out = {}
-    out["pca"] = _best(lambda: pg.pca_fill(y, obs, y), repeat)      # training included
+    out["pca"] = _best(lambda: pca_fill(y, obs, y), repeat)      # training included
     out["linear"] = _best(lambda: interpolate_linear(y, obs), repeat)
-    pred = pg.pca_fill(y, obs, y)[0]
+    pred = pca_fill(y, obs, y)[0]
     err = float(np.linalg.norm(pred - x, axis=2)[miss].mean())
     lin_err = float(np.linalg.norm(interpolate_linear(y, obs)[0] - x, axis=2)[miss].mean())
     print(f"\nspeed: 135_02, {x.shape[0]} frames x {x.shape[1]} markers, 8 gaps x 100 frames, best of {repeat}")

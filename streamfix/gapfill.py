@@ -24,6 +24,7 @@ from typing import Iterable
 import numpy as np
 
 from .core import pca_gapfill as pg
+from .core.pca_fill import pca_fill
 from .core.excursion import anchor_reference, limit_excursion, parents_from_bones
 from .motion import CONFIDENCE_INFERRED, Motion
 
@@ -106,7 +107,7 @@ def fill_motion_gaps(
     ts = _training(motion, training)
     window = blackout_window or max(int(round(200 * motion.rate_hz / 120.0)), 20)
     kappa = (TRUST_KAPPA if motion.skeleton.n_bones else None) if trust_kappa == -1.0 else trust_kappa
-    filled_pos, filled = pg.pca_fill(motion.positions, obs, ts, energy=energy, n_partners=n_partners,
+    filled_pos, filled = pca_fill(motion.positions, obs, ts, energy=energy, n_partners=n_partners,
                                      blackout_window=window, trust_kappa=kappa)
     n_pairs = rigid_pairs if rigid_pairs is not None else (RIGID_PAIRS if motion.skeleton.n_bones == 0 else 0)
     summary: dict = {"filled": int(filled.sum()), "training_takes": len(ts.motions)}

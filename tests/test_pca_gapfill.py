@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from streamfix.core import pca_gapfill as pg
+from streamfix.core.pca_fill import PcaGapFiller, pca_fill
 from streamfix.core.interpolate import interpolate_linear
 from streamfix.gapfill import fill_motion_gaps
 from streamfix.io import read_motion
@@ -33,8 +34,8 @@ def _err(pred, truth, miss):
 def test_no_gaps_output_equals_input_exactly(take_85):
     x = take_85.positions
     assert take_85.observed.all()
-    for out, filled in (pg.pca_fill(x, None, x), pg.fill_gaps(x, None, x), pg.fill_blackouts(x, None, x),
-                        pg.PcaGapFiller().fit(x).fill(x)):
+    for out, filled in (pca_fill(x, None, x), pg.fill_gaps(x, None, x), pg.fill_blackouts(x, None, x),
+                        PcaGapFiller().fit(x).fill(x)):
         assert np.array_equal(out, x)
         assert not filled.any()
     m = fill_motion_gaps(take_85)
@@ -47,7 +48,7 @@ def test_filled_never_replaces_observed(take_85):
     y, miss = _with_gaps(x, gaps)
     y[300:320] = np.nan                                      # and a blackout
     miss[300:320] = True
-    out, filled = pg.pca_fill(y, ~miss, y)
+    out, filled = pca_fill(y, ~miss, y)
     assert np.array_equal(out[~miss], x[~miss])              # bit for bit
     assert np.array_equal(filled, miss)                      # every gap filled, nothing else flagged
     assert np.isfinite(out).all()
@@ -58,7 +59,7 @@ def test_gaps_at_start_and_end_are_handled(take_85):
     T = x.shape[0]
     gaps = [(5, 0, 60), (30, T - 60, T), (12, 0, 1), (22, T - 1, T)]
     y, miss = _with_gaps(x, gaps)
-    out, filled = pg.pca_fill(y, ~miss, y)
+    out, filled = pca_fill(y, ~miss, y)
     assert np.array_equal(filled, miss) and np.isfinite(out).all()
     # better than holding the nearest observation, which is what interpolation does there
     hold = interpolate_linear(y, ~miss)[0]
@@ -67,7 +68,7 @@ def test_gaps_at_start_and_end_are_handled(take_85):
     z = x.copy()
     z[:15] = np.nan
     z[-15:] = np.nan
-    out, filled = pg.pca_fill(z, None, x[200:600])
+    out, filled = pca_fill(z, None, x[200:600])
     assert filled[:15].all() and filled[-15:].all() and np.isfinite(out).all()
     assert np.array_equal(out[15:-15], x[15:-15])
 
@@ -77,7 +78,7 @@ def test_real_50_frame_gap_beats_linear(take_85):
     rng = np.random.default_rng(0)
     gaps = [(int(j), int(a), int(a) + 50) for j, a in zip(rng.choice(41, 5, replace=False), (80, 230, 380, 530, 680))]
     y, miss = _with_gaps(x, gaps)
-    pca = pg.pca_fill(y, ~miss, y)[0]                       # trained on the take's observed samples only
+    pca = pca_fill(y, ~miss, y)[0]                       # trained on the take's observed samples only
     lin = interpolate_linear(y, ~miss)[0]
     assert _err(pca, x, miss) < 0.5 * _err(lin, x, miss)
 
@@ -111,7 +112,7 @@ def test_training_set_loader_matches_marker_names(take_85, shared_data):
 
 def test_streaming_filler_trains_on_history(take_85):
     x = take_85.positions
-    filler = pg.PcaGapFiller()
+    filler = PcaGapFiller()
     window = x[600:800].copy()
     miss = np.zeros(window.shape[:2], dtype=bool)
     miss[40:140, 8] = True                                   # a 100-frame gap

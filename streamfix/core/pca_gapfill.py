@@ -23,10 +23,13 @@ applied to every training sample ``A_i`` to give the incomplete ``A_i^(0)``):
   missing rows ``B^ = V^ alpha*`` (Eq. 15/16).
   -> :func:`eq16_estimate`, :func:`fill_blackouts` (module :mod:`streamfix.core.pca_blackouts`).
 
-The rank rule and training data are in :mod:`streamfix.core.pca_training`, the rigid
-marker pairs in :mod:`streamfix.core.rigid_pairs`; their public names are importable
-from here too. This module holds the gap estimators (Eq. 4/8), the whole-take
-:func:`pca_fill` and the streaming :class:`PcaGapFiller`.
+The rank rule and training data are in :mod:`streamfix.core.pca_training`, the
+matrix-level Eq. (1)-(8) in :mod:`streamfix.core.pca_estimators`, the rigid marker pairs
+in :mod:`streamfix.core.rigid_pairs`; their public names are importable from here too.
+This module fills partial gaps in positions (:func:`fill_gaps`: local templates, boundary
+correction); :mod:`streamfix.core.pca_fill` composes it with the blackout estimate into
+the whole-take :func:`~streamfix.core.pca_fill.pca_fill` and the streaming
+:class:`~streamfix.core.pca_fill.PcaGapFiller`.
 
 Choices the paper leaves open, made here and documented:
 
@@ -88,11 +91,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .interpolate import continuity_baseline, interpolate_linear, neighbour_observations
-# the shared ground, the blackout estimate and the rigid pairs live in their own modules;
-# their public names stay importable from here
+from .interpolate import continuity_baseline, neighbour_observations
+# the shared ground, the matrix estimators, the blackout estimate and the rigid pairs live
+# in their own modules; their public names stay importable from here
 from .pca_blackouts import blackout_weights, eq16_basis, eq16_estimate, fill_blackouts
-from .pca_training import DEFAULT_ENERGY, TrainingSet, _as_training, _observed_mask, _runs, _solve_sym, choose_rank
+from .pca_estimators import _eq4_from_grams, eq4_estimate, eq8_estimate
+from .pca_training import DEFAULT_ENERGY, TrainingSet, _as_training, _observed_mask, _runs, choose_rank
 from .rigid_pairs import estimate_rigid_pairs, pair_distance_plausibility, pair_distance_ranges, project_pair_distances
 
 __all__ = [
@@ -105,12 +109,10 @@ __all__ = [
     "blackout_weights",
     "fill_gaps",
     "fill_blackouts",
-    "pca_fill",
     "estimate_rigid_pairs",
     "pair_distance_ranges",
     "pair_distance_plausibility",
     "project_pair_distances",
-    "PcaGapFiller",
     "TrainingSet",
     "DEFAULT_PARTNERS",
     "shrink_untrusted",
@@ -125,75 +127,6 @@ the count whose estimates best match its observed samples within
 whole-matrix template)."""
 
 _EPS = 1e-12
-
-
-# --------------------------------------------------------------------------- helpers
-def _top_eigvecs(G: np.ndarray, r: int) -> np.ndarray:
-    """Leading ``r`` eigenvectors of symmetric ``G`` (``(..., n, n)`` -> ``(..., n, r)``)."""
-    _, vecs = np.linalg.eigh(G)
-    return vecs[..., ::-1][..., :r]
-
-
-def _align(basis: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Rotate ``basis`` (``(..., n, r)``) within its span onto ``reference`` (Procrustes)."""
-    M = np.swapaxes(basis, -1, -2) @ reference
-    Wl, _, Zt = np.linalg.svd(M)
-    return basis @ (Wl @ Zt)
-
-
-def _eq4_from_grams(
-    G: np.ndarray, C0: np.ndarray, G0: np.ndarray, GB0: np.ndarray, r: int, r0: int | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Eq. (1)-(3) from Gram matrices; returns ``(U, U_B0, T)`` for Eq. (4).
-
-    ``G`` ``(K, n, n)`` = ``A_i^T A_i``; ``C0`` ``(K, n, n)`` = ``A_i^(0)T A_i``;
-    ``G0`` ``(K, n, n)`` = ``A_i^(0)T A_i^(0)``; ``GB0`` ``(n, n)`` = ``B^(0)T B^(0)``.
-    ``r`` columns of ``U``; ``r0`` (default ``r``) columns of the incomplete bases.
-    """
-    r0 = r if r0 is None else r0
-    U = _top_eigvecs(G.sum(axis=0), r)                       # Eq. (1): A^T A = U S U^T
-    U_ref = _top_eigvecs(G0.sum(axis=0), r0)                 # pooled incomplete basis
-    Ui0 = _align(_top_eigvecs(G0, r0), U_ref)                # Eq. (1): A_i^(0)T A_i^(0)
-    UB0 = _align(_top_eigvecs(GB0, r0), U_ref)               # U_B^(0)
-    Uit = np.swapaxes(Ui0, -1, -2)
-    P = (Uit @ G0 @ Ui0).sum(axis=0)                         # sum U_i0^T A_i0^T A_i0 U_i0
-    Q = (Uit @ C0 @ U).sum(axis=0)                           # sum U_i0^T A_i0^T A_i U
-    T = _solve_sym(P, Q)                                     # Eq. (3) (normal equations of Eq. 2)
-    return U, UB0, T
-
-
-# --------------------------------------------------------------------------- matrix level
-def eq4_estimate(B0: np.ndarray, A: np.ndarray, A0: np.ndarray, r: int) -> np.ndarray:
-    """Eq. (4): ``B* = B^(0) U_B^(0) T U^T`` (estimate of the complete ``B``, ``m x n``).
-
-    ``B0`` ``(m, n)`` incomplete (template entries zero); ``A`` ``(K, m_i, n)`` complete
-    training pieces of one long sequence; ``A0`` the same with the template applied.
-    """
-    B0 = np.asarray(B0, dtype=np.float64)
-    A = np.asarray(A, dtype=np.float64)
-    A0 = np.asarray(A0, dtype=np.float64)
-    At, A0t = np.swapaxes(A, -1, -2), np.swapaxes(A0, -1, -2)
-    U, UB0, T = _eq4_from_grams(At @ A, A0t @ A, A0t @ A0, B0.T @ B0, r)
-    return B0 @ UB0 @ T @ U.T                                # Eq. (4)
-
-
-def eq8_estimate(B0: np.ndarray, A: np.ndarray, A0: np.ndarray, r: int) -> np.ndarray:
-    """Eq. (8): ``B* = V F V_B^(0)T B^(0)``; training pieces side by side, ``A = (A_1..A_K)``.
-
-    Shapes as :func:`eq4_estimate`, but every piece has the same ``m`` frames as ``B``
-    (``V`` is the ``m x r`` temporal eigenbasis of ``A A^T``, Eq. 5). With
-    ``P_i = A_i^(0)T V_i^(0)``, Eq. (7) is ``F^T = (sum P_i^T P_i)^-1 sum P_i^T A_i^T V``,
-    i.e. Eq. (3) on transposed matrices, so Eq. (8) is Eq. (4) on ``B^T``.
-    """
-    A = np.asarray(A, dtype=np.float64)
-    A0 = np.asarray(A0, dtype=np.float64)
-    B0 = np.asarray(B0, dtype=np.float64)
-    if A.shape[1] != B0.shape[0]:
-        raise ValueError(f"Eq. (8) needs training pieces of B's {B0.shape[0]} frames, got {A.shape[1]}")
-    # Eq. (5)-(7) via Grams over the frame axis: A_i A_i^T, A_i^(0) A_i^T, A_i^(0) A_i^(0)T.
-    V, VB0, Ft = _eq4_from_grams(A @ np.swapaxes(A, -1, -2), A0 @ np.swapaxes(A, -1, -2),
-                                 A0 @ np.swapaxes(A0, -1, -2), B0 @ B0.T, r)
-    return V @ Ft.T @ VB0.T @ B0                             # Eq. (8)
 
 
 # --------------------------------------------------------------------------- gaps: Eq. (4)
@@ -674,121 +607,3 @@ def _fill_gaps_pieces(x, obs, ts, rows, *, energy, r_max, window):
             filled[rr, j] = True
     filled &= ~obs
     return out, filled
-
-
-# --------------------------------------------------------------------------- whole take: gaps, then blackouts
-def _interp_leftover(x: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation per joint coordinate (edges hold); fallback for what PCA left.
-
-    Joints with no sample at all keep ``x``. Returns ``(positions, filled mask)``.
-    """
-    est, filled = interpolate_linear(x, obs)
-    out = x.copy()
-    out[filled] = est[filled]
-    return out, filled
-
-
-def pca_fill(
-    positions: np.ndarray,
-    observed: np.ndarray | None,
-    training,
-    *,
-    energy: float = DEFAULT_ENERGY,
-    min_observed_joints: int = 3,
-    blackout_window: int = 200,
-    fallback_linear: bool = True,
-    bases: dict | None = None,
-    **gap_kwargs,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Everything: partial gaps by Eq. (4)/(8), whole missing frames by Eq. (16).
-
-    Frames with fewer than ``min_observed_joints`` observed joints count as blackout
-    frames. ``bases`` (a dict kept by the caller) caches Eq. (16)'s temporal bases
-    between calls with the same training set. Whatever neither estimator could fill (e.g. no training frame has the
-    joint) is linearly interpolated when ``fallback_linear``. Returns
-    ``(filled, filled_mask)``; with nothing missing the output equals the input.
-    """
-    x = np.asarray(positions, dtype=np.float64)
-    obs = _observed_mask(x, observed)
-    out = x.copy()
-    out[~obs] = np.nan
-    if obs.all():
-        return out, np.zeros_like(obs)
-    ts = _as_training(training, x.shape[1])
-    out1, f1 = fill_gaps(out, obs, ts, energy=energy, min_observed_joints=min_observed_joints, **gap_kwargs)
-    have = obs | f1
-    black = obs.sum(axis=1) < min_observed_joints
-    out2, f2 = fill_blackouts(out1, have, ts, blackout=black, window=blackout_window, bases=bases)
-    have2 = have | f2
-    if fallback_linear and not have2.all():
-        out2, f3 = _interp_leftover(out2, have2)
-        have2 = have2 | f3
-    filled = have2 & ~obs
-    out2[obs] = x[obs]
-    return out2, filled
-
-
-# --------------------------------------------------------------------------- streaming class
-class PcaGapFiller:
-    """Fill long gaps and blackouts in windows of one body's stream.
-
-    Usage (streaming engine)::
-
-        filler = PcaGapFiller()                    # or PcaGapFiller(training=reference_takes)
-        filler.fit(clean_history)                  # (T_hist, J, 3) m, the body's recent clean output
-        filled, filled_mask = filler.fill(window_positions, window_observed)
-
-    ``fit`` may be called again at any time (e.g. every few seconds) with newer
-    history; reference takes given to the constructor are kept and combined with
-    the history. ``ready`` is False until some training exists; ``fill`` then only
-    interpolates linearly (``filled_mask`` still marks what was produced).
-    """
-
-    def __init__(self, training=None, *, energy: float = DEFAULT_ENERGY, blackout_window: int = 200,
-                 min_observed_joints: int = 3, piece_frames: int = 240, max_history: int = 3000) -> None:
-        self.energy = energy
-        self.blackout_window = blackout_window
-        self.min_observed_joints = min_observed_joints
-        self.piece_frames = piece_frames
-        self.max_history = max_history
-        self._reference: list[np.ndarray] = []
-        if training is not None:
-            ts = training if isinstance(training, TrainingSet) else TrainingSet(
-                [training] if isinstance(training, np.ndarray) else list(training))
-            self._reference = list(ts.motions)
-        self._history: np.ndarray | None = None
-        self._training: TrainingSet | None = TrainingSet(self._reference) if self._reference else None
-        self._bases: dict = {}
-
-    @property
-    def ready(self) -> bool:
-        return self._training is not None
-
-    def fit(self, history: np.ndarray) -> "PcaGapFiller":
-        """(Re)train from the body's recent clean history ``(T_hist, J, 3)`` metres.
-
-        Only the last ``max_history`` frames are kept; NaN samples are allowed (frames
-        lacking a joint are simply not used for templates that need it).
-        """
-        h = np.asarray(history, dtype=np.float64)
-        if h.ndim != 3 or h.shape[2] != 3:
-            raise ValueError(f"history must be (T_hist, J, 3) metres, got {h.shape}")
-        if self._reference and h.shape[1] != self._reference[0].shape[1]:
-            raise ValueError(f"history has {h.shape[1]} joints, reference takes have {self._reference[0].shape[1]}")
-        self._history = h[-self.max_history:].copy()
-        self._training = TrainingSet(self._reference + [self._history])
-        self._bases = {}
-        return self
-
-    def fill(self, positions: np.ndarray, observed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Fill a window ``(T, J, 3)``; returns ``(filled, filled_mask (T, J))``."""
-        x = np.asarray(positions, dtype=np.float64)
-        obs = _observed_mask(x, observed)
-        if self._training is None:
-            out = x.copy()
-            out[~obs] = np.nan
-            out, f = _interp_leftover(out, obs)
-            return out, f
-        return pca_fill(x, obs, self._training, energy=self.energy, min_observed_joints=self.min_observed_joints,
-                        blackout_window=min(self.blackout_window, x.shape[0]), piece_frames=self.piece_frames,
-                        bases=self._bases)

@@ -25,7 +25,7 @@ outside the test window (plus the other takes for ``pca-ref``). Errors: ``gap_ma
 ``|m_hat(n) - m(n)|`` averaged over gaps, in metres (x1000 for the paper's mm).
 
 Methods (``methods=None`` = all available): ``pca`` (local templates, boundary
-correction; :func:`streamfix.core.pca_gapfill.pca_fill`), ``pca-global`` (the paper's
+correction; :func:`streamfix.core.pca_fill.pca_fill`), ``pca-global`` (the paper's
 whole-frame template, no boundary correction: Eq. (4) as printed), ``linear``,
 ``spline`` (:mod:`streamfix.core.interpolate`), ``gapfill-rbt``, ``gapfill-pattern``,
 ``gapfill-spline`` (PyPI ``gapfill``: rigid-body fill from the 3 most rigid partner
@@ -50,6 +50,7 @@ import numpy as np
 
 from ..core import metrics
 from ..core import pca_gapfill as pg
+from ..core.pca_fill import pca_fill
 from ..core.interpolate import interpolate_linear, interpolate_spline
 from .registry import load_motion
 
@@ -145,7 +146,7 @@ def _pca(global_template: bool, with_refs: bool = False):
     def run(x, obs, ctx):
         kw = dict(n_partners=None, boundary_correction=False) if global_template else {}
         ts = ctx["training_ref"] if with_refs else ctx["training"]
-        return pg.pca_fill(x, obs, ts, blackout_window=ctx["window"], **kw)[0]
+        return pca_fill(x, obs, ts, blackout_window=ctx["window"], **kw)[0]
     return run
 
 

@@ -26,7 +26,7 @@ Where the fill comes from (first that applies, per sample)
 0. ``time``: a blackout closed on both sides (the clean history counts as the near side),
    on a skeleton the prior does not know: each joint's cubic spline through the history and
    the window (:func:`closed_blackout_mask`);
-1. ``pca``: :class:`streamfix.core.pca_gapfill.PcaGapFiller` trained on the body's
+1. ``pca``: :class:`streamfix.core.pca_fill.PcaGapFiller` trained on the body's
    clean history (observed samples only; recovered ones are NaN), when the history
    has ``>= MIN_HISTORY_S`` (3 s) of frames where every joint to fill was observed;
 2. ``prior``: :func:`streamfix.prior.init.fill_long_gaps` (D(z*) shifted to meet the
@@ -391,7 +391,7 @@ class BridgingWindowSolver:
             est = mask = None
             try:
                 if src == "pca" and h is not None and self._history_ok(h, left.any(axis=0), rate_hz):
-                    from ..core.pca_gapfill import PcaGapFiller
+                    from ..core.pca_fill import PcaGapFiller
 
                     est, mask = PcaGapFiller(blackout_window=T + C).fit(h).fill(ext, ext_obs)
                 elif src == "prior" and self.prior_ok(J, skeleton):
