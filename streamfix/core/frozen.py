@@ -21,6 +21,8 @@ positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool, ``parents`` ``(J,)`` int 
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy import ndimage
 from scipy.ndimage import uniform_filter1d
@@ -117,6 +119,19 @@ def frozen_inferred(
     parents: np.ndarray,
     limb_joints: np.ndarray,
     rate_hz: float,
+    **options: Any,
+) -> np.ndarray:
+    """``(T, J)`` bool: the frozen mask of :func:`frozen_and_rigid` alone (``options``: its
+    keyword settings)."""
+    return frozen_and_rigid(positions, inferred, parents, limb_joints, rate_hz, **options)[0]
+
+
+def frozen_and_rigid(
+    positions: np.ndarray,
+    inferred: np.ndarray,
+    parents: np.ndarray,
+    limb_joints: np.ndarray,
+    rate_hz: float,
     *,
     rigid_m: float = RIGID_M,
     span_s: float = ARTICULATION_SPAN_S,
@@ -124,8 +139,11 @@ def frozen_inferred(
     min_bone_m: float = MIN_DECIDING_BONE_M,
     mirror: np.ndarray | None = None,
     twin_bends_m: float = TWIN_BENDS_M,
-) -> np.ndarray:
-    """``(T, J)`` bool: inferred samples of limb joints that belong to a frozen guess.
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(frozen, rigid)`` ``(T, J)`` bool. ``frozen``: inferred samples of limb joints that
+    belong to a frozen guess; ``rigid``: the same decision without the twin test (the runs
+    that are rigid whatever the twin does), from the same articulation measure: the
+    streaming release needs both (streaming/frozen_release.py).
 
     A sample is frozen when it lies in a run of inferred samples of its joint at least
     ``min_run_s`` long, its joint is one of ``limb_joints`` (``(J,)`` bool: the joints
@@ -146,28 +164,6 @@ def frozen_inferred(
     frames, median). A limb still beside a still twin is a person holding still (a
     seated user's legs); beside a moving twin, the sensor's guess. A twin without a
     measure (missing) does not stop the decision.
-    """
-    return frozen_and_rigid(positions, inferred, parents, limb_joints, rate_hz, rigid_m=rigid_m, span_s=span_s,
-                            min_run_s=min_run_s, min_bone_m=min_bone_m, mirror=mirror, twin_bends_m=twin_bends_m)[0]
-
-
-def frozen_and_rigid(
-    positions: np.ndarray,
-    inferred: np.ndarray,
-    parents: np.ndarray,
-    limb_joints: np.ndarray,
-    rate_hz: float,
-    *,
-    rigid_m: float = RIGID_M,
-    span_s: float = ARTICULATION_SPAN_S,
-    min_run_s: float = MIN_FROZEN_S,
-    min_bone_m: float = MIN_DECIDING_BONE_M,
-    mirror: np.ndarray | None = None,
-    twin_bends_m: float = TWIN_BENDS_M,
-) -> tuple[np.ndarray, np.ndarray]:
-    """``(frozen, rigid)`` ``(T, J)`` bool: :func:`frozen_inferred`'s samples, and the same
-    decision without the twin test (the runs that are rigid whatever the twin does), from one
-    articulation measure: the streaming release needs both (streaming/frozen_release.py).
     """
     x = np.asarray(positions, dtype=np.float64)
     inf = np.asarray(inferred, dtype=bool) & np.isfinite(x).all(axis=2)

@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 
 from ..core.excursion import parents_from_bones
+from ..core.frozen import frozen_and_rigid
+from ..core.inferred import tracked_proximity
 from ..core.interpolate import run_labels
 from ..skeletons import Skeleton
 
@@ -116,9 +118,6 @@ def frozen_release(
     tracked sample of the joint (:func:`streamfix.core.inferred.tracked_proximity`), and
     whole rigid inferred runs (the twin not asked again) that contain a sample the
     previous window released (``released_before``, already shifted to this window's frames)."""
-    from ..core.frozen import frozen_and_rigid
-    from ..core.inferred import tracked_proximity
-
     conf = np.asarray(confidence, dtype=np.float64)
     inferred = (conf > 0) & (conf < 1.0)
     if not inferred.any():
