@@ -23,6 +23,7 @@ from . import kernels
 from .robust_stats import nanmedian
 
 __all__ = [
+    "bone_length_deviations",
     "bone_vectors",
     "bone_lengths_per_frame",
     "estimate_bone_lengths",
@@ -345,3 +346,22 @@ def gauss_newton_step(
         y = np.linalg.solve(K, jg[..., None])[..., 0]
     delta = (g - jt(y.reshape(n_frames, n_bones))) / rho2         # Woodbury
     return N + delta
+
+
+def bone_length_deviations(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
+                           min_bone_m: float) -> np.ndarray:
+    """Per bone ``(B,)``: median over frames of ``|l_t - median_t l|`` (m), how far a bone's
+    length strays from its typical length, on the frames where both ends are ``observed``
+    ``(T, J)``. NaN for a bone never seen or whose typical length is not above ``min_bone_m``
+    (BVH hierarchies contain zero-length bones). Compiled when numba is there
+    (:func:`streamfix.core.kernels.bone_spread_deviations`); this numpy code is its reference."""
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if len(b) == 0:
+        return np.zeros(0)
+    if kernels.COMPILED:
+        return kernels.bone_spread_deviations(positions, observed, b, min_bone_m)
+    lengths = np.linalg.norm(positions[:, b[:, 0]] - positions[:, b[:, 1]], axis=2)
+    lengths = np.where(observed[:, b[:, 0]] & observed[:, b[:, 1]], lengths, np.nan)
+    typical = nanmedian(lengths, axis=0)
+    dev = nanmedian(np.abs(lengths - typical), axis=0)
+    return np.where(typical > min_bone_m, dev, np.nan)

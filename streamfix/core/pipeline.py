@@ -27,6 +27,9 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
 2. **Outliers become missing.** An observed entry whose residual exceeds
    ``outlier_threshold_m`` is replaced by the robust fit (the protocol's noise is
    per coordinate, so this acts per coordinate); the rest keep their observed value.
+   On a rigid skeleton, a flagged group of joints whose raw bones keep their lengths
+   while the fit's do not is fast motion, not an outlier, and keeps its samples
+   (``keep_rigid_motion``, :mod:`streamfix.core.rigid_motion`).
 3. **Noise-matched smoothing.** What is left after outlier removal is either motion
    detail (keep it) or white sensor noise (smooth it). The two are told apart by how
    the robust scale of local-quadratic residuals grows with the window: white noise
@@ -86,7 +89,6 @@ Arrays: positions ``(T, J, 3)`` metres (NaN = missing), confidence ``(T, J)`` in
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -97,7 +99,8 @@ from .filters import median_savgol, running_median
 from .excursion import EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion, parents_from_bones
 from .interpolate import (continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths,
                           neighbour_observations)
-from .isometry import estimate_bone_lengths, gauss_newton_step, incidence_matrix
+from .isometry import bone_length_deviations, estimate_bone_lengths, gauss_newton_step, incidence_matrix
+from .rigid_motion import rigid_motion
 from .robust_stats import nanmedian
 
 __all__ = ["PipelineConfig", "WindowResult", "clean_window", "robust_temporal_fit"]
@@ -116,6 +119,7 @@ class PipelineConfig:
     blend_support: float = 0.5
     min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
+    keep_rigid_motion: bool = True  # flagged samples whose bones stay rigid are kept (core.rigid_motion)
     inferred_weight: float = 0.5
     # stage 4: solver for missing joint-frames
     use_solver: bool = True
@@ -343,23 +347,7 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
     Only frames where both ends are observed, and bones longer than ``min_bone_m``
     (BVH hierarchies contain zero-length bones), count. Needs no ground truth.
     """
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    if len(b) == 0:
-        return 0.0
-    if kernels.COMPILED:  # the same deviations in one compiled pass
-        dev = kernels.bone_spread_deviations(positions, observed, b, min_bone_m)
-        dev = dev[np.isfinite(dev)]
-        return float(dev.mean()) if dev.size else 0.0
-    lengths = np.linalg.norm(positions[:, b[:, 0]] - positions[:, b[:, 1]], axis=2)
-    lengths = np.where(observed[:, b[:, 0]] & observed[:, b[:, 1]], lengths, np.nan)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        med = np.median if np.isfinite(lengths).all() else np.nanmedian  # fast path: no gaps
-        typical = med(lengths, axis=0)
-        keep = typical > min_bone_m
-        if not keep.any():
-            return 0.0
-        dev = med(np.abs(lengths[:, keep] - typical[keep]), axis=0)
+    dev = bone_length_deviations(positions, observed, bones, min_bone_m)
     dev = dev[np.isfinite(dev)]
     return float(dev.mean()) if dev.size else 0.0
 
@@ -643,6 +631,11 @@ def clean_window(
 
     # stage 2: outlying coordinates take the robust fit
     outlier = obs3 & ~(np.abs(resid) <= cfg.outlier_threshold_m)  # NaN residual: an outlier
+    if cfg.keep_rigid_motion and len(rigid):
+        # a flagged group whose raw bones stay rigid is motion too fast for the fit, not an outlier
+        motion = rigid_motion(x, np.where(outlier, fit, x), outlier.any(axis=2), obs, rigid, cfg.min_bone_m)
+        outlier &= ~motion[..., None]
+        info["rigid_motion_kept"] = int(motion.sum())
     cleaned = np.where(obs3 & ~outlier, x, fit)
     info["outlier_fraction"] = info["contamination"] = float(outlier[obs3].mean()) if obs3.any() else 0.0
 
