@@ -74,7 +74,10 @@ def test_window_fill_starts_where_the_arm_was(walk):
 
 def test_serve_output_does_not_jump_when_an_arm_is_lost(walk):
     """The engine on serve's schedule, the arm lost for 2 s: its first clean frames stay
-    near the arm (before the limit: 23 cm off on the first 5 frames, 42 cm at worst)."""
+    near the arm (before the limit: 23 cm off on the first 5 frames, 42 cm at worst, on
+    the first lost frame). A jump shows on the first lost frame; by the fifth the fill has
+    had 0.13 s to drift from the arm's last pose as the true arm swings on (1-12 cm here,
+    depending on the PCA fill's choices, which small changes to the clean history flip)."""
     end = LOST + 65
     x = walk.copy()
     x[LOST:end, ARM_R] = np.nan
@@ -84,4 +87,4 @@ def test_serve_output_does_not_jump_when_an_arm_is_lost(walk):
     err = np.linalg.norm(out.positions[LOST:LOST + 5][:, ARM_R] - walk[LOST:LOST + 5][:, ARM_R], axis=2)
     print(f"first 5 lost frames: {err.mean() * 100:.1f} cm (max {err.max() * 100:.1f})")
     assert err.mean() < 0.05
-    assert err.max() < 0.1
+    assert err[0].max() < 0.05

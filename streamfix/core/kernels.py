@@ -304,9 +304,10 @@ def running_median(x: np.ndarray, window: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------- bone projection
 def _pbd_loop(xt, bi, bj, target, wi, wj, iterations):  # pragma: no cover - compiled
-    """Jacobi iterations on ``xt`` ``(J, 3, T)`` in place; ``wi``/``wj`` ``(B, T)``: each bone's
-    share of its length error at its parent/child end, over that joint's bone count. Frames
-    are independent, so the innermost loop runs over them (contiguous: it vectorises)."""
+    """Jacobi iterations on ``xt`` ``(J, 3, T)`` in place; ``target`` ``(B, T)``: each bone's
+    length per frame; ``wi``/``wj`` ``(B, T)``: each bone's share of its length error at its
+    parent/child end, over that joint's bone count. Frames are independent, so the innermost
+    loop runs over them (contiguous: it vectorises)."""
     n_joints, _, n_frames = xt.shape
     n_bones = bi.shape[0]
     delta = np.empty((n_joints, 3, n_frames))
@@ -315,13 +316,12 @@ def _pbd_loop(xt, bi, bj, target, wi, wj, iterations):  # pragma: no cover - com
         for b in range(n_bones):
             i = bi[b]
             j = bj[b]
-            length = target[b]
             for t in range(n_frames):
                 u0 = xt[i, 0, t] - xt[j, 0, t]
                 u1 = xt[i, 1, t] - xt[j, 1, t]
                 u2 = xt[i, 2, t] - xt[j, 2, t]
                 norm = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-                err = (norm - length) / norm if norm > 1e-9 else 0.0
+                err = (norm - target[b, t]) / norm if norm > 1e-9 else 0.0
                 a = wi[b, t] * err
                 d = wj[b, t] * err
                 delta[i, 0, t] -= u0 * a
@@ -340,27 +340,43 @@ _pbd_compiled = _jit(_pbd_loop, error_model="numpy")  # vectorised divisions
 
 
 def pbd_constraints(
-    shape: tuple[int, ...], bones: np.ndarray, bone_lengths: np.ndarray, inverse_mass: np.ndarray | None
+    shape: tuple[int, ...],
+    bones: np.ndarray,
+    bone_lengths: np.ndarray,
+    inverse_mass: np.ndarray | None,
+    tolerance: np.ndarray | None = None,
+    positions: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The bone constraints of a Jacobi bone-length projection on positions of ``shape``
-    ``(T, J, 3)``, shared by the numpy reference and the compiled loop.
+    ``(T, J, 3)`` (``positions``, needed with a ``tolerance``), shared by the numpy
+    reference and the compiled loop.
 
-    Returns ``(i, j, lengths, share_i, degree)``: the bones with a finite target length
-    (parent ``i``, child ``j``, contiguous), their lengths (m), each bone's share of its
-    length error taken by ``i`` ``(T, B)`` (its inverse mass over the pair's; 0.5 when both
-    are 0) and each joint's number of bones ``(J,)``.
+    Returns ``(i, j, targets, share_i, degree)``: the bones with a finite target length
+    (parent ``i``, child ``j``, contiguous), their length in each frame ``(B, T)`` (m: the
+    given length, or within ``tolerance`` ``(T, B)`` of it the bone's own length in
+    ``positions``: the length play :mod:`streamfix.core.length_tolerance` leaves a tracked
+    bone), each bone's share of its length error taken by ``i`` ``(T, B)`` (its inverse mass
+    over the pair's; 0.5 when both are 0) and each joint's number of bones ``(J,)``.
     """
     n_frames, n_joints = shape[0], shape[1]
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     lengths = np.asarray(bone_lengths, dtype=np.float64)
     keep = np.isfinite(lengths)
     b, lengths = b[keep], np.ascontiguousarray(lengths[keep])
+    targets = np.repeat(lengths[:, None], n_frames, axis=1)
+    if tolerance is not None and positions is not None and len(b):
+        band = np.maximum(np.asarray(tolerance, dtype=np.float64)[:, keep], 0.0).T  # (B, T)
+        x = np.asarray(positions, dtype=np.float64)
+        own = np.linalg.norm(x[:, b[:, 0]] - x[:, b[:, 1]], axis=2).T
+        own = np.where(np.isfinite(own), own, targets)
+        targets = np.clip(own, targets - band, targets + band)
+    targets = np.ascontiguousarray(targets)
     im = np.ones((n_frames, n_joints)) if inverse_mass is None else np.asarray(inverse_mass, dtype=np.float64)
     i, j = np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
     wi, wj = im[:, i], im[:, j]
     share_i = np.ascontiguousarray(np.where(wi + wj > 0, wi / np.maximum(wi + wj, 1e-12), 0.5))
     degree = np.bincount(np.concatenate([i, j]), minlength=n_joints).astype(np.float64)
-    return i, j, lengths, share_i, degree
+    return i, j, targets, share_i, degree
 
 
 def project_bone_lengths_pbd(
@@ -369,6 +385,7 @@ def project_bone_lengths_pbd(
     bone_lengths: np.ndarray,
     iterations: int = 20,
     inverse_mass: np.ndarray | None = None,
+    tolerance: np.ndarray | None = None,
 ) -> np.ndarray:
     """Jacobi bone-length iterations, compiled: the math of
     :func:`streamfix.core.pipeline.project_bone_lengths_pbd` (same arguments, same result
@@ -376,14 +393,14 @@ def project_bone_lengths_pbd(
     if _pbd_compiled is None:
         raise RuntimeError("streamfix.core.kernels.project_bone_lengths_pbd needs numba; use streamfix.core.pipeline's")
     x = np.array(positions, dtype=np.float64, order="C", copy=True)
-    i, j, lengths, share_i, degree = pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
+    i, j, targets, share_i, degree = pbd_constraints(x.shape, bones, bone_lengths, inverse_mass, tolerance, x)
     if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
     inv_degree = 1.0 / np.maximum(degree, 1.0)
     wi = np.ascontiguousarray((share_i * inv_degree[i]).T)          # (B, T)
     wj = np.ascontiguousarray(((1.0 - share_i) * inv_degree[j]).T)
     xt = np.ascontiguousarray(x.transpose(1, 2, 0))                  # (J, 3, T): frames innermost
-    _pbd_compiled(xt, i, j, lengths, wi, wj, int(iterations))
+    _pbd_compiled(xt, i, j, targets, wi, wj, int(iterations))
     return np.ascontiguousarray(xt.transpose(2, 0, 1))
 
 

@@ -77,7 +77,12 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    shoulder and spine behind it), and on noisy joints the correction is smoothed over
    ``projection_smooth_s`` (:func:`smooth_projection`): a steady length correction
    applied along a short bone whose direction jitters would add jitter. Exact samples
-   (mocap) keep equal shares and the exact projection.
+   (mocap) keep equal shares. **Length play on tracked bones**
+   (:mod:`streamfix.core.length_tolerance`): a bone between two tracked, precise joints
+   keeps its own length while it is within ``projection_tolerance`` of the target (less
+   ``projection_tolerance_noise`` x the ends' noise), and is pulled only to that band's
+   edge beyond: a sensor's joint centres shift with the pose, and a length error does not
+   say which end is wrong.
 
 How well it does, against what, is measured by the benchmarks and written to
 ``benchmarks/results/`` (``accuracy.md`` for the paper's protocols, ``paired.md`` against
@@ -100,6 +105,7 @@ from .excursion import EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, li
 from .interpolate import (continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths,
                           neighbour_observations)
 from .isometry import bone_length_deviations, estimate_bone_lengths, gauss_newton_step, incidence_matrix
+from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, length_tolerance
 from .rigid_motion import rigid_motion
 from .robust_stats import nanmedian
 
@@ -148,6 +154,8 @@ class PipelineConfig:
     projection_noise_floor_m: float | None = 0.001  # None: shares by confidence only, correction not smoothed
     projection_smooth_s: float = 0.2  # zero-lag span (s) of the correction on noisy joints; 0 = none
     projection_noisy_ratio: float = 2.0  # noisier than this x the median joint: takes more of the correction
+    projection_tolerance: float = LENGTH_TOLERANCE  # tracked bones keep this fraction of length play (0 = exact)
+    projection_tolerance_noise: float = NOISE_MULTIPLE  # the play narrows by this x the bone's noise scale
 
 
 @dataclass
@@ -413,17 +421,23 @@ def project_bone_lengths_pbd(
     bone_lengths: np.ndarray,
     iterations: int = 20,
     inverse_mass: np.ndarray | None = None,
+    tolerance: np.ndarray | None = None,
 ) -> np.ndarray:
     """Bone-length projection by Jacobi constraint iterations (position-based dynamics).
 
     Per bone (i, j) with current vector u = n_i - n_j and target length l, the length
     error (|u| - l) is split between its two ends along u in proportion to their
     inverse masses ``inverse_mass`` ``(T, J)`` (a low-confidence joint moves more);
-    each joint moves by the mean of its bones' corrections. Vectorised over frames and
-    bones; unconditionally stable (every step shortens each violated constraint).
+    each joint moves by the mean of its bones' corrections. ``tolerance`` ``(T, B)``
+    (m, None = 0): a bone whose length in ``positions`` is within l +- tolerance keeps
+    that length as its target, one beyond gets the band's nearer edge
+    (:mod:`streamfix.core.length_tolerance`); a target, not a free band, so a joint
+    between a kept bone and a projected one is not dragged along the kept one.
+    Vectorised over frames and bones; unconditionally stable (every step shortens each
+    violated constraint).
     """
     x = np.asarray(positions, dtype=np.float64).copy()
-    i, j, lengths, share_i, degree = kernels.pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
+    i, j, target, share_i, degree = kernels.pbd_constraints(x.shape, bones, bone_lengths, inverse_mass, tolerance, x)
     if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
     n_frames, n_joints, _ = x.shape
@@ -440,7 +454,6 @@ def project_bone_lengths_pbd(
     n_bones = len(i)
     C = np.concatenate([-P.T, Q.T], axis=1)
     si = share_i.T[:, None, :]                                    # (B, 1, T)
-    target = lengths[:, None]
     xt = np.ascontiguousarray(x.transpose(1, 2, 0))               # (J, 3, T)
     for _ in range(iterations):
         u = xt[i] - xt[j]                                         # (B, 3, T)
@@ -529,10 +542,12 @@ def smooth_projection(
     return estimate + (corr + a * (smooth - corr)).reshape(estimate.shape)
 
 
-def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass):
+def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass, tolerance=None):
     """:func:`project_bone_lengths_pbd`, compiled when :data:`streamfix.core.kernels.COMPILED` (same math)."""
     project = kernels.project_bone_lengths_pbd if kernels.COMPILED else project_bone_lengths_pbd
-    return project(positions, bones, bone_lengths, iterations, inverse_mass)
+    return project(positions, bones, bone_lengths, iterations, inverse_mass, tolerance)
+
+
 # --------------------------------------------------------------------------- the pipeline
 def _limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rate_hz: float,
                      gain: float, ramp_s: float) -> np.ndarray:
@@ -711,7 +726,11 @@ def clean_window(
         if cfg.projection == "pbd":
             noise = joint_noise_scale(x, cleaned, obs3 & ~outlier)
             inv_mass = projection_inverse_mass(conf, obs, noise, cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
-            projected = _project_pbd(cleaned, bones, bl, cfg.projection_iterations, inv_mass)
+            band = None
+            if cfg.projection_tolerance > 0:
+                band = length_tolerance(bones, bl, noise, conf, obs & ~outlier.any(axis=2), cfg.projection_tolerance,
+                                        cfg.projection_tolerance_noise)
+            projected = _project_pbd(cleaned, bones, bl, cfg.projection_iterations, inv_mass, band)
             share = noise_share(noise, cfg.projection_noise_floor_m)
             cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s)
             info["joint_noise_m"] = noise
