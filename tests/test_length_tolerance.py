@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from streamfix.core import kernels, metrics, pipeline
-from streamfix.core.length_tolerance import length_tolerance
+from streamfix.core.length_tolerance import length_targets, length_tolerance
 from streamfix.core.pipeline import PipelineConfig, project_bone_lengths_pbd
 from streamfix.core.reference_metrics import remove_mean_offset
 from streamfix.evaluation.paired import body_region
@@ -42,43 +42,65 @@ def test_band_is_the_length_share_less_the_noise_on_trusted_ends_only():
     assert np.all(nan_length[:, 1] == 0.0)
 
 
-def test_projection_keeps_a_bone_inside_the_band_and_pulls_one_outside_to_its_edge():
+def _scaled_chain(x: np.ndarray, factors: tuple[float, float, float]) -> np.ndarray:
+    """``x`` with each bone of ``BONES`` set to ``factor x LENGTHS`` along its own direction."""
+    y = x.copy()
+    for (p, c), length, f in zip(BONES, LENGTHS, factors):
+        u = x[:, c] - x[:, p]
+        y[:, c] = y[:, p] + u * (length * f / np.linalg.norm(u, axis=1))[:, None]
+    return y
+
+
+def test_targets_keep_the_bones_own_length_inside_the_band_and_its_edge_outside():
+    rng = np.random.default_rng(7)
+    T = 30
+    x = _scaled_chain(rng.normal(scale=0.3, size=(T, 4, 3)), (1.02, 0.98, 1.2))
+    band = np.full((T, 3), 0.01)
+    band[:, 1] = 0.0                                   # an untrusted end: the length itself
+    targets = length_targets(x, BONES, LENGTHS, band)
+    assert np.allclose(targets[:, 0], 1.02 * LENGTHS[0])  # 6 mm over, inside the 1 cm band: kept
+    assert np.allclose(targets[:, 1], LENGTHS[1])
+    assert np.allclose(targets[:, 2], LENGTHS[2] + 0.01)        # 8 cm over: the band's edge
+    # smoothed over time, the slow play is kept and the frame-to-frame part removed,
+    # never beyond the band
+    slow = 0.005 * np.sin(np.arange(T) / 5.0)
+    play = slow + 0.004 * (-1.0) ** np.arange(T)
+    wobble = np.concatenate([_scaled_chain(x[t:t + 1], (1 + play[t] / LENGTHS[0], 1.0, 1.0)) for t in range(T)])
+    smooth = length_targets(wobble, BONES, LENGTHS, np.full((T, 3), 0.02), smooth_frames=5)[:, 0] - LENGTHS[0]
+    inner = slice(5, T - 5)
+    assert np.abs(smooth[inner] - slow[inner]).max() < 0.002
+    assert np.abs(smooth[inner] - play[inner]).max() > 0.003
+    assert np.abs(smooth).max() <= 0.02 + 1e-12
+    nan_length = length_targets(x, BONES, np.array([0.3, np.nan, 0.4]), band)
+    assert np.isnan(nan_length[:, 1]).all()
+
+
+def test_projection_reaches_per_frame_targets_and_leaves_kept_bones_alone():
     rng = np.random.default_rng(7)
     T = 30
     x = rng.normal(scale=0.3, size=(T, 4, 3))
-    band = np.full((T, 3), 0.01)
-    y = project_bone_lengths_pbd(x, BONES, LENGTHS, 200, None, band)
-    before = metrics.bone_lengths(x, BONES)
-    after = metrics.bone_lengths(y, BONES)
-    excess = np.abs(after - LENGTHS[None, :])
-    assert excess.max() < 0.01 + 1e-4                     # every bone ends inside the band
-    # frames whose bones were all inside the band already are left exactly as they were
-    inside = (np.abs(before - LENGTHS[None, :]) <= 0.01).all(axis=1)
-    x_in = x.copy()
-    x_in[:, 1] = x[:, 0] + (x[:, 1] - x[:, 0]) * (LENGTHS[0] * 1.02 / np.linalg.norm(x[:, 1] - x[:, 0], axis=1))[:, None]
-    x_in[:, 2] = x_in[:, 1] + (x[:, 2] - x[:, 1]) * (LENGTHS[1] * 0.98 / np.linalg.norm(x[:, 2] - x[:, 1], axis=1))[:, None]
-    x_in[:, 3] = x_in[:, 1] + (x[:, 3] - x[:, 1]) * (LENGTHS[2] * 1.01 / np.linalg.norm(x[:, 3] - x[:, 1], axis=1))[:, None]
-    band_wide = np.full((T, 3), 0.04 * LENGTHS.max())
-    assert np.abs(project_bone_lengths_pbd(x_in, BONES, LENGTHS, 200, None, band_wide) - x_in).max() < 1e-12
-    # beyond the band, the bone is pulled to its edge, not to the length itself
-    far = excess[~inside]
-    assert far.size and np.abs(far.max(axis=1) - 0.01).max() < 1e-3
-    # no band: the exact projection as before
-    exact = project_bone_lengths_pbd(x, BONES, LENGTHS, 200, None, None)
+    targets = length_targets(x, BONES, LENGTHS, np.full((T, 3), 0.01))
+    y = project_bone_lengths_pbd(x, BONES, targets, 200, None)
+    assert np.abs(metrics.bone_lengths(y, BONES) - targets).max() < 1e-4
+    # a pose whose bones are all within the band is left as it is
+    x_in = _scaled_chain(x, (1.02, 0.98, 1.01))
+    kept = length_targets(x_in, BONES, LENGTHS, np.full((T, 3), 0.04 * LENGTHS.max()))
+    assert np.abs(project_bone_lengths_pbd(x_in, BONES, kept, 200, None) - x_in).max() < 1e-12
+    # one length for every frame: the exact projection as before
+    exact = project_bone_lengths_pbd(x, BONES, LENGTHS, 200, None)
     assert np.abs(metrics.bone_lengths(exact, BONES) - LENGTHS).max() < 1e-4
 
 
-def test_kernel_matches_the_numpy_reference_with_a_band():
+def test_kernel_matches_the_numpy_reference_with_per_frame_targets():
     if not kernels.COMPILED:
         pytest.skip("numba not available: only the numpy reference runs")
     rng = np.random.default_rng(11)
     x = rng.normal(scale=0.3, size=(50, 4, 3))
-    band = rng.uniform(0.0, 0.02, size=(50, 3))
+    targets = LENGTHS[None, :] + rng.uniform(-0.02, 0.02, size=(50, 3))
+    targets[:, 1] = np.nan                # a bone without a length is left alone
     inv_mass = rng.uniform(0.5, 2.0, size=(50, 4))
-    lengths = LENGTHS.copy()
-    lengths[1] = np.nan                   # a bone without a length is left alone, its band column too
-    got = kernels.project_bone_lengths_pbd(x, BONES, lengths, 40, inv_mass, band)
-    ref = pipeline.project_bone_lengths_pbd(x, BONES, lengths, 40, inv_mass, band)
+    got = kernels.project_bone_lengths_pbd(x, BONES, targets, 40, inv_mass)
+    ref = pipeline.project_bone_lengths_pbd(x, BONES, targets, 40, inv_mass)
     assert np.abs(got - ref).max() < 1e-12
     assert np.abs(got - x).max() > 1e-3
 

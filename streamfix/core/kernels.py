@@ -340,37 +340,24 @@ _pbd_compiled = _jit(_pbd_loop, error_model="numpy")  # vectorised divisions
 
 
 def pbd_constraints(
-    shape: tuple[int, ...],
-    bones: np.ndarray,
-    bone_lengths: np.ndarray,
-    inverse_mass: np.ndarray | None,
-    tolerance: np.ndarray | None = None,
-    positions: np.ndarray | None = None,
+    shape: tuple[int, ...], bones: np.ndarray, bone_lengths: np.ndarray, inverse_mass: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The bone constraints of a Jacobi bone-length projection on positions of ``shape``
-    ``(T, J, 3)`` (``positions``, needed with a ``tolerance``), shared by the numpy
-    reference and the compiled loop.
+    ``(T, J, 3)``, shared by the numpy reference and the compiled loop.
 
-    Returns ``(i, j, targets, share_i, degree)``: the bones with a finite target length
-    (parent ``i``, child ``j``, contiguous), their length in each frame ``(B, T)`` (m: the
-    given length, or within ``tolerance`` ``(T, B)`` of it the bone's own length in
-    ``positions``: the length play :mod:`streamfix.core.length_tolerance` leaves a tracked
-    bone), each bone's share of its length error taken by ``i`` ``(T, B)`` (its inverse mass
-    over the pair's; 0.5 when both are 0) and each joint's number of bones ``(J,)``.
+    ``bone_lengths``: ``(B,)``, or ``(T, B)`` for a length per frame (m). Returns
+    ``(i, j, targets, share_i, degree)``: the bones with a finite length in every frame
+    (parent ``i``, child ``j``, contiguous), their length in each frame ``(B, T)``, each
+    bone's share of its length error taken by ``i`` ``(T, B)`` (its inverse mass over the
+    pair's; 0.5 when both are 0) and each joint's number of bones ``(J,)``.
     """
     n_frames, n_joints = shape[0], shape[1]
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     lengths = np.asarray(bone_lengths, dtype=np.float64)
-    keep = np.isfinite(lengths)
-    b, lengths = b[keep], np.ascontiguousarray(lengths[keep])
-    targets = np.repeat(lengths[:, None], n_frames, axis=1)
-    if tolerance is not None and positions is not None and len(b):
-        band = np.maximum(np.asarray(tolerance, dtype=np.float64)[:, keep], 0.0).T  # (B, T)
-        x = np.asarray(positions, dtype=np.float64)
-        own = np.linalg.norm(x[:, b[:, 0]] - x[:, b[:, 1]], axis=2).T
-        own = np.where(np.isfinite(own), own, targets)
-        targets = np.clip(own, targets - band, targets + band)
-    targets = np.ascontiguousarray(targets)
+    per_frame = lengths if lengths.ndim == 2 else np.broadcast_to(lengths, (n_frames, len(lengths)))
+    keep = np.isfinite(per_frame).all(axis=0)
+    b = b[keep]
+    targets = np.ascontiguousarray(per_frame[:, keep].T)
     im = np.ones((n_frames, n_joints)) if inverse_mass is None else np.asarray(inverse_mass, dtype=np.float64)
     i, j = np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1])
     wi, wj = im[:, i], im[:, j]
@@ -385,7 +372,6 @@ def project_bone_lengths_pbd(
     bone_lengths: np.ndarray,
     iterations: int = 20,
     inverse_mass: np.ndarray | None = None,
-    tolerance: np.ndarray | None = None,
 ) -> np.ndarray:
     """Jacobi bone-length iterations, compiled: the math of
     :func:`streamfix.core.pipeline.project_bone_lengths_pbd` (same arguments, same result
@@ -393,7 +379,7 @@ def project_bone_lengths_pbd(
     if _pbd_compiled is None:
         raise RuntimeError("streamfix.core.kernels.project_bone_lengths_pbd needs numba; use streamfix.core.pipeline's")
     x = np.array(positions, dtype=np.float64, order="C", copy=True)
-    i, j, targets, share_i, degree = pbd_constraints(x.shape, bones, bone_lengths, inverse_mass, tolerance, x)
+    i, j, targets, share_i, degree = pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
     if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
     inv_degree = 1.0 / np.maximum(degree, 1.0)

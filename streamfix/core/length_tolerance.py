@@ -14,7 +14,10 @@ most of the cleaner's damage to uncorrupted frames (``benchmarks/bench_sensor.py
 So a tracked bone keeps its own length as the projection's target while that is within
 a band around the body's length for it, and gets the band's nearer edge beyond (a target,
 not a free band: a joint between a kept bone and a projected one is not dragged along
-the kept one, as a lost arm's fill would drag its tracked shoulder). The band is a fraction of the
+the kept one, as a lost arm's fill would drag its tracked shoulder). The kept play is
+smoothed over a fraction of a second: it follows the pose, which changes slowly, while
+frame-to-frame length changes are noise the projection still removes (kept raw, they
+raised the UI-PRMD output's jitter). The band is a fraction of the
 length (the pose-dependent play of real skeletons), narrowed by the noise the bone's two
 ends carry: where the joints are noisy (every-sample jitter of centimetres), a length
 deviation inside the band is mostly that noise, and the exact projection removes a part
@@ -28,8 +31,10 @@ and noise scales ``(J,)`` in metres; the band is ``(T, B)`` metres.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
-__all__ = ["length_tolerance", "LENGTH_TOLERANCE", "NOISE_MULTIPLE", "TRUSTED_CONFIDENCE"]
+__all__ = ["length_tolerance", "length_targets", "LENGTH_TOLERANCE", "NOISE_MULTIPLE", "TRUSTED_CONFIDENCE",
+           "PLAY_SMOOTH_S"]
 
 LENGTH_TOLERANCE = 0.04
 """The band's half-width as a fraction of the bone's length, for noise-free ends."""
@@ -39,6 +44,9 @@ NOISE_MULTIPLE = 6.0
 
 TRUSTED_CONFIDENCE = 0.75
 """Both ends at or above this confidence (tracked 1.0, inferred 0.5) for a band."""
+
+PLAY_SMOOTH_S = 0.3
+"""Span (s) of the two box filters that smooth the kept play (a triangle twice as long)."""
 
 
 def length_tolerance(
@@ -66,3 +74,28 @@ def length_tolerance(
     noise = np.sqrt(s[b[:, 0]] ** 2 + s[b[:, 1]] ** 2)
     band = np.maximum(0.0, fraction * np.nan_to_num(lengths, nan=0.0) - noise_multiple * noise)
     return np.where(ok[:, b[:, 0]] & ok[:, b[:, 1]], band[None, :], 0.0)
+
+
+def length_targets(
+    positions: np.ndarray, bones: np.ndarray, lengths: np.ndarray, band: np.ndarray, smooth_frames: int = 0
+) -> np.ndarray:
+    """``(T, B)`` metres: each bone's target length per frame for the projection.
+
+    ``lengths`` plus the bone's own deviation from it in ``positions`` ``(T, J, 3)``,
+    clipped to ``+-band`` ``(T, B)``, then smoothed over time by two centred box filters of
+    ``smooth_frames`` (0 or 1: none) and clipped again (so the target never leaves the
+    band, and a bone beyond it on a few frames pulls its neighbours' targets by at most the
+    band). A bone without a length stays NaN; a frame where the bone is not finite keeps
+    ``lengths``.
+    """
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    base = np.asarray(lengths, dtype=np.float64)[None, :]
+    x = np.asarray(positions, dtype=np.float64)
+    band = np.asarray(band, dtype=np.float64)
+    own = np.linalg.norm(x[:, b[:, 0]] - x[:, b[:, 1]], axis=2)
+    dev = np.clip(np.nan_to_num(own - base, nan=0.0), -band, band)
+    if smooth_frames > 1 and dev.shape[0] > 1:
+        dev = uniform_filter1d(uniform_filter1d(dev, smooth_frames, axis=0, mode="nearest"), smooth_frames, axis=0,
+                               mode="nearest")
+        dev = np.clip(dev, -band, band)
+    return base + dev

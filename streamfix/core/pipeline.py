@@ -79,10 +79,10 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    applied along a short bone whose direction jitters would add jitter. Exact samples
    (mocap) keep equal shares. **Length play on tracked bones**
    (:mod:`streamfix.core.length_tolerance`): a bone between two tracked, precise joints
-   keeps its own length while it is within ``projection_tolerance`` of the target (less
-   ``projection_tolerance_noise`` x the ends' noise), and is pulled only to that band's
-   edge beyond: a sensor's joint centres shift with the pose, and a length error does not
-   say which end is wrong.
+   keeps its own length, smoothed over ``projection_play_smooth_s``, while that is within
+   ``projection_tolerance`` of the target (less ``projection_tolerance_noise`` x the ends'
+   noise), and is pulled only to that band's edge beyond: a sensor's joint centres shift
+   with the pose, and a length error does not say which end is wrong.
 
 How well it does, against what, is measured by the benchmarks and written to
 ``benchmarks/results/`` (``accuracy.md`` for the paper's protocols, ``paired.md`` against
@@ -105,7 +105,7 @@ from .excursion import EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, li
 from .interpolate import (continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths,
                           neighbour_observations)
 from .isometry import bone_length_deviations, estimate_bone_lengths, gauss_newton_step, incidence_matrix
-from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, length_tolerance
+from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
 from .rigid_motion import rigid_motion
 from .robust_stats import nanmedian
 
@@ -156,6 +156,7 @@ class PipelineConfig:
     projection_noisy_ratio: float = 2.0  # noisier than this x the median joint: takes more of the correction
     projection_tolerance: float = LENGTH_TOLERANCE  # tracked bones keep this fraction of length play (0 = exact)
     projection_tolerance_noise: float = NOISE_MULTIPLE  # the play narrows by this x the bone's noise scale
+    projection_play_smooth_s: float = PLAY_SMOOTH_S  # the kept play is smoothed over this span (s): slow, not jitter
 
 
 @dataclass
@@ -421,23 +422,18 @@ def project_bone_lengths_pbd(
     bone_lengths: np.ndarray,
     iterations: int = 20,
     inverse_mass: np.ndarray | None = None,
-    tolerance: np.ndarray | None = None,
 ) -> np.ndarray:
     """Bone-length projection by Jacobi constraint iterations (position-based dynamics).
 
-    Per bone (i, j) with current vector u = n_i - n_j and target length l, the length
-    error (|u| - l) is split between its two ends along u in proportion to their
+    Per bone (i, j) with current vector u = n_i - n_j and target length l (``bone_lengths``
+    ``(B,)``, or ``(T, B)`` for a target per frame: :func:`streamfix.core.length_tolerance.length_targets`),
+    the length error (|u| - l) is split between its two ends along u in proportion to their
     inverse masses ``inverse_mass`` ``(T, J)`` (a low-confidence joint moves more);
-    each joint moves by the mean of its bones' corrections. ``tolerance`` ``(T, B)``
-    (m, None = 0): a bone whose length in ``positions`` is within l +- tolerance keeps
-    that length as its target, one beyond gets the band's nearer edge
-    (:mod:`streamfix.core.length_tolerance`); a target, not a free band, so a joint
-    between a kept bone and a projected one is not dragged along the kept one.
-    Vectorised over frames and bones; unconditionally stable (every step shortens each
-    violated constraint).
+    each joint moves by the mean of its bones' corrections. Vectorised over frames and
+    bones; unconditionally stable (every step shortens each violated constraint).
     """
     x = np.asarray(positions, dtype=np.float64).copy()
-    i, j, target, share_i, degree = kernels.pbd_constraints(x.shape, bones, bone_lengths, inverse_mass, tolerance, x)
+    i, j, target, share_i, degree = kernels.pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
     if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
         return x
     n_frames, n_joints, _ = x.shape
@@ -542,10 +538,10 @@ def smooth_projection(
     return estimate + (corr + a * (smooth - corr)).reshape(estimate.shape)
 
 
-def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass, tolerance=None):
+def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass):
     """:func:`project_bone_lengths_pbd`, compiled when :data:`streamfix.core.kernels.COMPILED` (same math)."""
     project = kernels.project_bone_lengths_pbd if kernels.COMPILED else project_bone_lengths_pbd
-    return project(positions, bones, bone_lengths, iterations, inverse_mass, tolerance)
+    return project(positions, bones, bone_lengths, iterations, inverse_mass)
 
 
 # --------------------------------------------------------------------------- the pipeline
@@ -726,11 +722,12 @@ def clean_window(
         if cfg.projection == "pbd":
             noise = joint_noise_scale(x, cleaned, obs3 & ~outlier)
             inv_mass = projection_inverse_mass(conf, obs, noise, cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
-            band = None
+            targets = bl
             if cfg.projection_tolerance > 0:
                 band = length_tolerance(bones, bl, noise, conf, obs & ~outlier.any(axis=2), cfg.projection_tolerance,
                                         cfg.projection_tolerance_noise)
-            projected = _project_pbd(cleaned, bones, bl, cfg.projection_iterations, inv_mass, band)
+                targets = length_targets(cleaned, bones, bl, band, int(round(cfg.projection_play_smooth_s * rate_hz)))
+            projected = _project_pbd(cleaned, bones, targets, cfg.projection_iterations, inv_mass)
             share = noise_share(noise, cfg.projection_noise_floor_m)
             cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s)
             info["joint_noise_m"] = noise
