@@ -50,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--window/--hop/--lookahead override either")
     parser.add_argument("--skeleton-lengths", default=None, metavar="LENGTHS",
                         help="fixed bone lengths in metres: comma-separated B values, or a file of them "
-                             "(one per line or comma-separated), in the skeleton's bone order")
+                             "(one per line or comma-separated), in the skeleton's bone order; the output holds "
+                             "them (without it, tracked bones keep a few per cent of the sensor's length play)")
     parser.add_argument("--keep-filled", action="store_true",
                         help="also write the frames synthesised for dropped sensor frames (timestamp gaps)")
     parser.add_argument("--no-gapfill", action="store_true",
@@ -147,12 +148,16 @@ def run(args: argparse.Namespace) -> int:
         return 2
     n_frames_in = motion.n_frames
     try:
-        lengths = None
+        lengths = solver_config = None
         if args.skeleton_lengths is not None:
+            from ..core.pipeline import PipelineConfig
+
             lengths = _parse_lengths(args.skeleton_lengths, motion.skeleton.n_bones)
+            # lengths the user fixed are held: no length play (core/length_tolerance.py)
+            solver_config = PipelineConfig(projection_tolerance=0.0)
         seconds, frames = _lookahead(args)
         config = schedule_config(args.schedule, motion.rate_hz, window=args.window, hop=args.hop, lookahead=frames,
-                                 lookahead_s=seconds, bone_lengths=lengths)
+                                 lookahead_s=seconds, bone_lengths=lengths, solver_config=solver_config)
     except ValueError as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 2

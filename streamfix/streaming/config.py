@@ -51,7 +51,9 @@ class EngineConfig:
     detection, filters). live: the live path's settings. max_iterations: solver
     iteration cap per window (None = the solver's default). solver_config: passed as
     ``config=`` to the window solver (None = its default). bone_lengths: fixed
-    ``(B,)`` bone lengths in metres (None = estimated robustly per body).
+    ``(B,)`` bone lengths in metres (None = estimated robustly per body); the window
+    cleaner still leaves tracked bones their length play around them unless its config
+    says ``projection_tolerance=0`` (``streamfix clean --skeleton-lengths`` does).
     degrade: allow degradation in threaded mode. degraded_iterations: iterations at
     level 1 (None = half of max_iterations, or 10 if that is None). max_hop: hop at the
     deepest level (None = W // 2). max_pending_windows: windows queued per tracked body beyond which
