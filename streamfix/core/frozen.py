@@ -29,8 +29,8 @@ from scipy.ndimage import uniform_filter1d
 
 from .interpolate import missing_run_lengths, run_labels
 
-__all__ = ["articulation", "frozen_inferred", "frozen_and_rigid", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S", "MIN_FROZEN_S",
-           "MIN_DECIDING_BONE_M"]
+__all__ = ["articulation", "frozen_inferred", "frozen_and_rigid", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S",
+           "MIN_FROZEN_S", "MIN_DECIDING_BONE_M"]
 
 RIGID_M = 0.004
 """Articulation (m, RMS residual of the straight-line fit, summed over axes) below which

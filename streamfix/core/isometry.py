@@ -360,8 +360,7 @@ def bone_length_deviations(positions: np.ndarray, observed: np.ndarray, bones: n
         return np.zeros(0)
     if kernels.COMPILED:
         return kernels.bone_spread_deviations(positions, observed, b, min_bone_m)
-    lengths = np.linalg.norm(positions[:, b[:, 0]] - positions[:, b[:, 1]], axis=2)
-    lengths = np.where(observed[:, b[:, 0]] & observed[:, b[:, 1]], lengths, np.nan)
+    lengths = np.where(observed[:, b[:, 0]] & observed[:, b[:, 1]], bone_lengths_per_frame(positions, b), np.nan)
     typical = nanmedian(lengths, axis=0)
     dev = nanmedian(np.abs(lengths - typical), axis=0)
     return np.where(typical > min_bone_m, dev, np.nan)

@@ -13,8 +13,8 @@ most of the cleaner's damage to uncorrupted frames (``benchmarks/bench_sensor.py
 
 So a tracked bone keeps its own length as the projection's target while that is within
 a band around the body's length for it, and gets the band's nearer edge beyond (a target,
-not a free band: a joint between a kept bone and a projected one is not dragged along
-the kept one, as a lost arm's fill would drag its tracked shoulder). The kept play is
+not a free band: a kept bone still holds the length it has while the corrections of the
+bones beside it move its ends, instead of passing them along unopposed). The kept play is
 smoothed over a fraction of a second: it follows the pose, which changes slowly, while
 frame-to-frame length changes are noise the projection still removes (kept raw, they
 raised the UI-PRMD output's jitter). The band is a fraction of the
@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
+
+from .isometry import bone_lengths_per_frame
 
 __all__ = ["length_tolerance", "length_targets", "LENGTH_TOLERANCE", "NOISE_MULTIPLE", "TRUSTED_CONFIDENCE",
            "PLAY_SMOOTH_S"]
@@ -88,11 +90,9 @@ def length_targets(
     band). A bone without a length stays NaN; a frame where the bone is not finite keeps
     ``lengths``.
     """
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     base = np.asarray(lengths, dtype=np.float64)[None, :]
-    x = np.asarray(positions, dtype=np.float64)
     band = np.asarray(band, dtype=np.float64)
-    own = np.linalg.norm(x[:, b[:, 0]] - x[:, b[:, 1]], axis=2)
+    own = bone_lengths_per_frame(positions, bones)
     dev = np.clip(np.nan_to_num(own - base, nan=0.0), -band, band)
     if smooth_frames > 1 and dev.shape[0] > 1:
         dev = uniform_filter1d(uniform_filter1d(dev, smooth_frames, axis=0, mode="nearest"), smooth_frames, axis=0,

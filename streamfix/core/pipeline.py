@@ -713,8 +713,8 @@ def clean_window(
 
     # stage 5: bone-length projection
     if cfg.project_bones and len(bones):
+        good = obs & ~outlier.any(axis=2)  # observed and kept: the samples whose lengths count
         if bone_lengths is None:
-            good = obs & ~outlier.any(axis=2)
             bl = estimate_bone_lengths(cleaned, bones, good, np.where(good, conf, 0.0))
             bl = np.where(np.isfinite(bl), bl, estimate_bone_lengths(cleaned, bones))
         else:
@@ -724,9 +724,10 @@ def clean_window(
             inv_mass = projection_inverse_mass(conf, obs, noise, cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
             targets = bl
             if cfg.projection_tolerance > 0:
-                band = length_tolerance(bones, bl, noise, conf, obs & ~outlier.any(axis=2), cfg.projection_tolerance,
+                band = length_tolerance(bones, bl, noise, conf, good, cfg.projection_tolerance,
                                         cfg.projection_tolerance_noise)
-                targets = length_targets(cleaned, bones, bl, band, int(round(cfg.projection_play_smooth_s * rate_hz)))
+                play_frames = int(round(cfg.projection_play_smooth_s * rate_hz))
+                targets = length_targets(cleaned, bones, bl, band, play_frames)
             projected = _project_pbd(cleaned, bones, targets, cfg.projection_iterations, inv_mass)
             share = noise_share(noise, cfg.projection_noise_floor_m)
             cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .isometry import bone_length_deviations, incidence_matrix
+from .isometry import bone_length_deviations, bone_lengths_per_frame, incidence_matrix
 from .robust_stats import nanmedian
 
 __all__ = ["rigid_motion", "RIGID_MOTION_RATIO", "RIGID_MOTION_FLOOR_M", "RIGID_TOLERANCE_M", "RIGID_SKELETON_QUANTILE"]
@@ -95,7 +95,7 @@ def rigid_motion(
         return out
     a, b = p[:, 0], p[:, 1]
     both = observed[:, a] & observed[:, b]
-    raw_len = np.linalg.norm(raw[:, a] - raw[:, b], axis=2)
+    raw_len = bone_lengths_per_frame(raw, p)
     clean = both & ~flagged[:, a] & ~flagged[:, b]
     ref = nanmedian(np.where(clean, raw_len, np.nan), axis=0)
     # a reference needs enough unflagged frames (heavily corrupted windows have none to trust)
@@ -108,7 +108,7 @@ def rigid_motion(
     f, use = flagged[rows], both[rows] & usable[None, :]
     fa, fb = f[:, a], f[:, b]
     touch = use & (fa | fb)
-    rep_len = np.linalg.norm(replaced[rows][:, a] - replaced[rows][:, b], axis=2)
+    rep_len = bone_lengths_per_frame(replaced[rows], p)
     n_joints = flagged.shape[1]
     incidence = np.abs(incidence_matrix(p, n_joints))  # (B, J): 1 at both ends of each bone
     # per flagged joint: bone-length error (raw, replaced), bones judged, bones to unflagged joints
