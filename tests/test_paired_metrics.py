@@ -121,7 +121,7 @@ def test_handover_frames_are_where_the_engine_blend_passes_to_a_newer_window(met
     from streamfix.motion import Motion
     from streamfix.skeletons import KINECT_V2
 
-    T = 200
+    T = 300  # at least four hand-overs on the file schedule (a window every 40 frames)
     m = Motion(np.zeros((T, 25, 3)), np.ones((T, 25)), np.arange(T) / 30.0, 30.0, KINECT_V2)
     count = [0]
 

@@ -13,7 +13,7 @@ from .live import LiveConfig
 
 __all__ = [
     "EngineConfig", "DEFAULT_WINDOW_S", "DEFAULT_LOOKAHEAD_S", "DEFAULT_HOP_S",
-    "FILE_HOP_S", "FILE_LOOKAHEAD_S", "FILE_HANDOVER_S", "SCHEDULES", "schedule_config",
+    "FILE_WINDOW_S", "FILE_HOP_S", "FILE_LOOKAHEAD_S", "FILE_HANDOVER_S", "SCHEDULES", "schedule_config",
 ]
 
 DEFAULT_WINDOW_S = 2.0  # W: 60 frames at 30 Hz
@@ -22,10 +22,15 @@ DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
 
 # The schedule for files (EngineConfig.for_files): nobody waits for a frame of a file, so
 # each frame can take its value from windows that hold it near their middle instead of
-# near their newest edge, and half as many windows need solving.
-FILE_HOP_S = 2.0 / 3.0  # H: 20 frames at 30 Hz
-FILE_LOOKAHEAD_S = 1.5  # L: 45 frames at 30 Hz: a frame is 0.7-1.5 s from its windows' newest frame
-FILE_HANDOVER_S = 0.5  # crossfade: the windows share 0.87 s, and a longer fade hides the hand-over
+# near their newest edge, and longer windows see more of the body's motion per solve (the
+# robust fits, the low-rank model and the bone lengths have more frames to go on) while
+# fewer solves cover each frame (W / H = 2.25 instead of serve's 6). Chosen over 2 s and
+# 4 s windows by bench_paired, bench_sensor and bench_accuracy (4 s lost the sensor
+# protocol's frozen-limb bar); what each scores is in benchmarks/results/.
+FILE_WINDOW_S = 3.0  # W: 90 frames at 30 Hz
+FILE_HOP_S = 4.0 / 3.0  # H: 40 frames at 30 Hz
+FILE_LOOKAHEAD_S = 2.0  # L: 60 frames at 30 Hz: a frame is 0.7-2 s from its windows' newest frame
+FILE_HANDOVER_S = 0.5  # crossfade: consecutive windows share 1.67 s; the fade is where they hand over
 
 
 def _frames_from_seconds(rate_hz: float, window: int | None, lookahead: int | None, hop: int | None,
@@ -79,7 +84,7 @@ class EngineConfig:
     consecutive windows share; see :func:`streamfix.streaming.blending.handover_weights`).
     startup_hop: the hop (frames) while a body's first ``window`` frames arrive
     (:func:`streamfix.streaming.blending.next_window_end`); None = ``max(1, hop // 2)``, at most
-    ``hop`` (= no extra windows: the file schedule, whose 1.5 s lookahead gains nothing from them).
+    ``hop`` (= no extra windows: the file schedule, whose 2 s lookahead gains nothing from them).
     output_smooth_s: half-width (s) of the binomial whose twicing smooths the blended clean
     output where windows found sensor noise (``h`` frames at ``rate_hz`` give a ``4 h + 1``
     tap kernel, :func:`streamfix.core.filters.twiced_binomial_taps`; 0 = none): the
@@ -118,8 +123,8 @@ class EngineConfig:
 
     @classmethod
     def for_files(cls, rate_hz: float = 30.0, **settings: Any) -> "EngineConfig":
-        """The schedule ``streamfix clean`` uses for recordings: hop ``FILE_HOP_S``,
-        lookahead ``FILE_LOOKAHEAD_S``, crossfade ``FILE_HANDOVER_S`` (``settings`` override
+        """The schedule ``streamfix clean`` uses for recordings: window ``FILE_WINDOW_S``,
+        hop ``FILE_HOP_S``, lookahead ``FILE_LOOKAHEAD_S``, crossfade ``FILE_HANDOVER_S`` (``settings`` override
         any field). The same window solver as ``serve``'s; the clean topic's 0.5 s latency
         bound does not apply to a file."""
         rate = float(rate_hz)
@@ -129,7 +134,7 @@ class EngineConfig:
         lookahead = settings.pop("lookahead", None) if lookahead_s is None else int(round(float(lookahead_s) * rate))
         window, lookahead, hop = _frames_from_seconds(
             rate, settings.pop("window", None), lookahead, settings.pop("hop", None),
-            (DEFAULT_WINDOW_S, FILE_LOOKAHEAD_S, FILE_HOP_S),
+            (FILE_WINDOW_S, FILE_LOOKAHEAD_S, FILE_HOP_S),
         )
         base: dict[str, Any] = {"window": window, "hop": hop, "lookahead": lookahead, "handover_s": FILE_HANDOVER_S,
                                 "startup_hop": hop}
