@@ -17,5 +17,15 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def keraal(shared_data):
+    """The KERAAL Kinect v2 + Vicon take of ../shared/data/paired (a streamfix.io.paired.PairedTake)."""
+    from streamfix.io.paired import find_takes, load_take
+
+    refs = [r for r in find_takes(shared_data / "paired") if r.dataset == "keraal"]
+    assert refs, "the KERAAL paired take is missing from ../shared/data/paired"
+    return load_take(refs[0])
+
+
+@pytest.fixture(scope="session")
 def project_root() -> Path:
     return PROJECT_ROOT

@@ -13,7 +13,6 @@ from streamfix.core.pipeline import PipelineConfig, project_bone_lengths_pbd
 from streamfix.core.reference_metrics import remove_mean_offset
 from streamfix.evaluation.paired import body_region
 from streamfix.evaluation.sensor import _rng, ground_truth
-from streamfix.io.paired import find_takes, load_take
 from streamfix.motion import Motion
 from streamfix.sim.sensor_errors import apply_sensor_errors
 from streamfix.skeletons import KINECT_V2
@@ -103,13 +102,6 @@ def test_kernel_matches_the_numpy_reference_with_per_frame_targets():
     ref = pipeline.project_bone_lengths_pbd(x, BONES, targets, 40, inv_mass)
     assert np.abs(got - ref).max() < 1e-12
     assert np.abs(got - x).max() > 1e-3
-
-
-@pytest.fixture(scope="module")
-def keraal(shared_data):
-    refs = [r for r in find_takes(shared_data / "paired") if r.dataset == "keraal"]
-    assert refs, "the KERAAL paired take is missing from ../shared/data/paired"
-    return load_take(refs[0])
 
 
 def _lower_error(take, y) -> float:

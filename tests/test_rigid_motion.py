@@ -44,9 +44,13 @@ def calm_window(shared_data):
 
 
 def _corrupted_as_without(m, truth, x, where):
-    """Output at ``where`` with the rigidity test equals the output without it; both errors."""
-    on, off = _clean(m, x, True).positions, _clean(m, x, False).positions
-    np.testing.assert_allclose(on[where], off[where], atol=1e-3)
+    """The rigidity test leaves the samples at ``where`` flagged (recovered), as they are
+    without it; the input's and the output's errors there. (The outputs with and without
+    the test may differ by millimetres: the test keeps fast motion elsewhere in the window,
+    and the bone projection shares length errors by which samples are flagged.)"""
+    on_result, off_result = _clean(m, x, True), _clean(m, x, False)
+    assert on_result.recovered[where].all() and off_result.recovered[where].all()
+    on = on_result.positions
     return (np.linalg.norm(x[where] - truth[where], axis=-1).mean(),
             np.linalg.norm(on[where] - truth[where], axis=-1).mean())
 

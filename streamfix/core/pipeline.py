@@ -82,7 +82,10 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    keeps its own length, smoothed over ``projection_play_smooth_s``, while that is within
    ``projection_tolerance`` of the target (less ``projection_tolerance_noise`` x the ends'
    noise), and is pulled only to that band's edge beyond: a sensor's joint centres shift
-   with the pose, and a length error does not say which end is wrong.
+   with the pose, and a length error does not say which end is wrong. **Lost joints
+   yield**: a run of outlier flags at least ``projection_failure_s`` long
+   (:func:`tracking_failures`) holds the temporal fit's guess, and takes the length
+   errors of its bones as a missing joint would.
 
 How well it does, against what, is measured by the benchmarks and written to
 ``benchmarks/results/`` (``accuracy.md`` for the paper's protocols, ``paired.md`` against
@@ -109,7 +112,7 @@ from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, l
 from .rigid_motion import rigid_motion
 from .robust_stats import nanmedian
 
-__all__ = ["PipelineConfig", "WindowResult", "clean_window", "robust_temporal_fit"]
+__all__ = ["PipelineConfig", "WindowResult", "clean_window", "robust_temporal_fit", "tracking_failures"]
 
 
 @dataclass(frozen=True)
@@ -157,6 +160,7 @@ class PipelineConfig:
     projection_tolerance: float = LENGTH_TOLERANCE  # tracked bones keep this fraction of length play (0 = exact)
     projection_tolerance_noise: float = NOISE_MULTIPLE  # the play narrows by this x the bone's noise scale
     projection_play_smooth_s: float = PLAY_SMOOTH_S  # the kept play is smoothed over this span (s): slow, not jitter
+    projection_failure_s: float | None = 1.0 / 6.0  # outlier runs this long (s) take length errors as missing joints do
 
 
 @dataclass
@@ -486,6 +490,25 @@ def noise_share(noise_m: np.ndarray, noise_floor_m: float | None) -> np.ndarray:
     return s2 / (s2 + float(noise_floor_m) ** 2)
 
 
+def tracking_failures(flagged: np.ndarray, rate_hz: float, min_s: float | None) -> np.ndarray:
+    """``(T, J)`` bool: flagged samples in runs of at least ``min_s`` seconds (at ``rate_hz``;
+    None = none): a sensor that lost the joint for that long, not a spike or a jittery sample.
+
+    Why: such a run's values are the temporal fit's guess, not a measurement, so the bone
+    projection moves it as it moves a missing joint (confidence 0) and leaves its tracked
+    neighbour where the sensor put it. On the KERAAL take, the arms' failed runs had made
+    the projection drag the top of the spine (SpineShoulder) and the elbows, which the
+    sensor had right. Shorter runs keep their confidence: on ``serve``'s schedule, where
+    isolated flags are common at the window's newest frames, treating every flag so added
+    output jitter (``benchmarks/bench_paired.py``'s jitter column).
+    """
+    f = np.asarray(flagged, dtype=bool)
+    if min_s is None or not f.any():
+        return np.zeros_like(f)
+    min_frames = max(1, int(round(min_s * rate_hz)))
+    return missing_run_lengths(~f) >= min_frames
+
+
 def projection_inverse_mass(
     confidence: np.ndarray,
     observed: np.ndarray,
@@ -721,7 +744,9 @@ def clean_window(
             bl = np.asarray(bone_lengths, dtype=np.float64)
         if cfg.projection == "pbd":
             noise = joint_noise_scale(x, cleaned, obs3 & ~outlier)
-            inv_mass = projection_inverse_mass(conf, obs, noise, cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
+            failed = tracking_failures(outlier.any(axis=2), rate_hz, cfg.projection_failure_s)
+            inv_mass = projection_inverse_mass(np.where(failed, 0.0, conf), obs & ~failed, noise,
+                                               cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
             targets = bl
             if cfg.projection_tolerance > 0:
                 band = length_tolerance(bones, bl, noise, conf, good, cfg.projection_tolerance,
