@@ -748,9 +748,9 @@ def clean_window(
             inv_mass = projection_inverse_mass(np.where(failed, 0.0, conf), obs & ~failed, noise,
                                                cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
             targets = bl
-            if cfg.projection_tolerance > 0:
-                band = length_tolerance(bones, bl, noise, conf, good, cfg.projection_tolerance,
-                                        cfg.projection_tolerance_noise)
+            band = (length_tolerance(bones, bl, noise, conf, good, cfg.projection_tolerance,
+                                     cfg.projection_tolerance_noise) if cfg.projection_tolerance > 0 else None)
+            if band is not None and band.any():  # no play anywhere (noisy ends, guesses): the lengths themselves
                 play_frames = int(round(cfg.projection_play_smooth_s * rate_hz))
                 targets = length_targets(cleaned, bones, bl, band, play_frames)
             projected = _project_pbd(cleaned, bones, targets, cfg.projection_iterations, inv_mass)
