@@ -92,16 +92,38 @@ def test_heavy_corruption_80_percent_at_120hz(shared_data):
 
 
 def test_window_choice_prefers_rigid_bones(cmu30):
-    # the chosen candidate is the one with the least bone-length spread, and on clean-ish
-    # data the shortest window (least bias) wins the tie
+    # one half-width per window (local_width_s=None): the chosen candidate is the one with
+    # the least bone-length spread, and on clean-ish data the shortest window (least bias)
+    # wins the tie
     gt, bones = cmu30
     noisy, _ = add_noise(gt, 0.05, np.random.default_rng(9))
-    r = clean_window(noisy, None, bones, None, 30.0)
+    r = clean_window(noisy, None, bones, None, 30.0, PipelineConfig(local_width_s=None))
     spreads = r.info["bone_spread_m"]
     assert spreads[r.info["estimator"]] == min(spreads.values())
     h = r.info["half_width_frames"]
     windows = {k: v for k, v in spreads.items() if isinstance(k, int)}
     assert h == min(k for k, v in windows.items() if v == min(windows.values()))
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_half_width_is_chosen_per_frame_where_the_corruption_is(cmu30, seed):
+    # the first half of the window is corrupted (30 % of coordinates, +-25 cm), the second
+    # exact: each part takes its own half-width (wide where the fit must reject outliers,
+    # the shortest where it need not), which one half-width for the window cannot
+    gt, bones = cmu30
+    gt = gt[:120]
+    noisy = gt.copy()
+    noisy[:60], _ = add_noise(gt[:60], 0.3, np.random.default_rng(seed))
+    r = clean_window(noisy, None, bones, None, 30.0)
+    one = clean_window(noisy, None, bones, None, 30.0, PipelineConfig(local_width_s=None))
+    widths = r.info["local_half_width_frames"]
+    assert widths.shape == (120,)
+    assert widths[:55].mean() > widths[65:].mean() + 1.5
+    assert widths[65:].mean() < 3.5  # near the shortest candidate (2 frames at 30 Hz)
+    assert metrics.aje(r.positions, gt) < 0.6 * metrics.aje(one.positions, gt)
+    # the estimator is still the candidate with the least bone-length spread
+    spreads = r.info["bone_spread_m"]
+    assert spreads[r.info["estimator"]] == min(spreads[k] for k in ("local", "median_savgol", "blend"))
 
 
 def test_pbd_projection_reaches_lengths_and_moves_low_confidence_more():

@@ -23,7 +23,13 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    :func:`_bone_spread`; for marker sets the most rigid marker pairs) wins. A skeleton's
    bones are rigid, so this needs no ground truth: a fit that follows the clean samples
    keeps them constant, one that chased corrupted samples does not. Ties go to the
-   shortest window (least bias).
+   shortest window (least bias). **Frame by frame** (``local_width_s``): the window's
+   speed and corruption change within it, so the fitted half-width is chosen per frame,
+   by the same rigidity scored over the frames around it, and blended between
+   neighbouring candidates (:mod:`streamfix.core.local_width`); that composite fit
+   (``"local"``) takes the window-wide fit's place when its bones are at least as rigid
+   over the whole window, and then competes with the median candidates as that fit did.
+   ``benchmarks/results/`` has what it changed on each protocol.
 2. **Outliers become missing.** An observed entry whose residual exceeds
    ``outlier_threshold_m`` is replaced by the robust fit (the protocol's noise is
    per coordinate, so this acts per coordinate); the rest keep their observed value.
@@ -109,6 +115,7 @@ from .interpolate import (continuity_baseline, interpolate_linear, interpolate_s
                           neighbour_observations)
 from .isometry import bone_length_deviations, estimate_bone_lengths, gauss_newton_step, incidence_matrix
 from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
+from .local_width import frame_bone_deviation, local_width_index, take_fractional
 from .rigid_motion import rigid_motion
 from .robust_stats import nanmedian
 
@@ -122,6 +129,8 @@ class PipelineConfig:
     # stage 1: robust temporal regression
     scales_m: tuple[float, ...] = (0.10, 0.05, 0.02, 0.01)
     candidate_windows_s: tuple[float, ...] = (0.067, 0.1, 0.133, 0.2, 0.3)
+    local_width_s: float | None = 1.0 / 6.0  # half-span (s) each frame's half-width is scored over; None = one per window
+    local_width_smooth_s: float = 0.1  # half-span (s) the per-frame choice is averaged over
     h_min_frames: int = 2
     median_fallback: bool = True
     fallback_margin: float = 1.0
@@ -350,6 +359,13 @@ def _rigid_pairs(x: np.ndarray, obs: np.ndarray, rate_hz: float, k: int = 60) ->
         return np.zeros((0, 2), dtype=np.intp)
     med = median_savgol(x, rate_hz, obs)
     return estimate_rigid_pairs(med, obs, k=k, min_common=max(3, min(30, x.shape[0] // 2)))
+
+
+def _kernel_mass(h: int) -> float:
+    """Sum of the tricube kernel of half-width ``h`` frames (a local fit's support with every
+    sample observed and weighted 1)."""
+    k = np.arange(-h, h + 1)
+    return float(np.sum((1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3))
 
 
 def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float) -> float:
@@ -637,29 +653,53 @@ def clean_window(
     widths = sorted({max(cfg.h_min_frames, int(round(w * rate_hz))) for w in cfg.candidate_windows_s})
     best = None
     spreads = {}
+    local = cfg.local_width_s is not None and len(widths) > 1 and len(rigid) > 0
+    fits, supports, dev_sums, dev_counts = [], [], [], []
     for h in widths:
         fit_h, resid_h, sup_h = _robust_fit(x, prior, h, cfg.scales_m)
-        spreads[h] = _bone_spread(_estimate(x, obs3, fit_h, resid_h, cfg), obs, rigid, cfg.min_bone_m)
+        est_h = _estimate(x, obs3, fit_h, resid_h, cfg)
+        spreads[h] = _bone_spread(est_h, obs, rigid, cfg.min_bone_m)
         if best is None or spreads[h] < spreads[best[0]]:
             best = (h, fit_h, resid_h, sup_h)
+        if local:
+            fits.append(fit_h)
+            supports.append(sup_h)
+            s_h, n_h = frame_bone_deviation(est_h, obs, rigid, cfg.min_bone_m)
+            dev_sums.append(s_h)
+            dev_counts.append(n_h)
     h, fit, resid, sup = best
     chosen = h
+    full = _kernel_mass(h)  # of a full window: where a fit has less inlier support, the median helps
+    if local:
+        # each frame takes the half-width whose bones stay rigid around it (core.local_width)
+        index = local_width_index(np.array(dev_sums), np.array(dev_counts),
+                                  int(round(cfg.local_width_s * rate_hz)), int(round(cfg.local_width_smooth_s * rate_hz)))
+        local_fit = take_fractional(np.array(fits), index)
+        local_resid = np.where(obs3, x - local_fit, np.nan)
+        spreads["local"] = _bone_spread(_estimate(x, obs3, local_fit, local_resid, cfg), obs, rigid, cfg.min_bone_m)
+        # kept only if the window as a whole is as rigid: a short failure on one bone (a
+        # limb thrown for a few frames) is diluted in a frame's mean over bones, and the
+        # shortest fit, which follows it, would otherwise win there
+        if spreads["local"] <= spreads[h]:
+            chosen, fit, resid = "local", local_fit, local_resid
+            sup = take_fractional(np.array(supports), index)
+            full = np.interp(index, np.arange(len(widths)), [_kernel_mass(w) for w in widths])[:, None, None]
+            info["local_half_width_frames"] = np.interp(index, np.arange(len(widths)), widths)
     if cfg.median_fallback:
         # the median's answer is unbiased for symmetric noise, however heavy: a fallback
         # for windows too short or too fast for any local fit to find the clean samples,
         # alone or blended where the chosen fit has little inlier support
+        fit_key = chosen
         med = median_savgol(x, rate_hz, obs)
         med_resid = np.where(obs3, x - med, np.nan)
         spreads["median_savgol"] = _bone_spread(med, obs, rigid, cfg.min_bone_m)
-        kk = np.arange(-h, h + 1)
-        full = float(np.sum((1.0 - (np.abs(kk) / (h + 1)) ** 3) ** 3))  # kernel mass of a full window
         a = np.clip(sup / (full * cfg.blend_support), 0.0, 1.0)
         blend = np.where(np.isfinite(med), a * fit + (1.0 - a) * np.nan_to_num(med), fit)
         blend_resid = np.where(obs3, x - blend, np.nan)
         spreads["blend"] = _bone_spread(_estimate(x, obs3, blend, blend_resid, cfg), obs, rigid, cfg.min_bone_m)
-        if spreads["median_savgol"] < cfg.fallback_margin * min(spreads[h], spreads["blend"]):
+        if spreads["median_savgol"] < cfg.fallback_margin * min(spreads[fit_key], spreads["blend"]):
             chosen, fit, resid = "median_savgol", med, med_resid
-        elif spreads["blend"] < spreads[h]:
+        elif spreads["blend"] < spreads[fit_key]:
             chosen, fit, resid = "blend", blend, blend_resid
     info.update(half_width_frames=h, estimator=chosen, bone_spread_m=spreads)
 
