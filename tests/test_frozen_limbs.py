@@ -324,3 +324,30 @@ def test_legs_inferred_for_long_keep_the_sensors_guess(shared_data):
     assert inferred.sum() > 1500
     assert not (on.recovered[:, legs] & ~off.recovered[:, legs]).any()
     assert np.abs(on.positions[:, legs] - off.positions[:, legs]).max() < 1e-3
+
+
+def test_a_walking_bodys_frozen_arm_follows_the_gait_with_no_far_end_in_view(shared_data):
+    """serve's 0.5 s lookahead shows no end to a 2 s freeze: the fill runs open-ended. PCA
+    (the body's own walking history) and the prior fill the released arm; held within its
+    recent range of the last tracked pose (the excursion limit) the fill was pulled back
+    onto the frozen pose itself. While the body travels no fill is limited."""
+    from streamfix.evaluation.sensor import ground_truth
+
+    truth = ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", RATE).positions
+    names = KV2.joint_names
+    arm = np.array([names.index(n) for n in ("ElbowRight", "WristRight", "HandRight", "HandTipRight", "ThumbRight")])
+    shoulder = names.index("ShoulderRight")
+    for a, b in ((159, 224), (170, 240)):
+        x = truth.copy()
+        conf = np.ones(truth.shape[:2])
+        x[a:b, arm] = truth[a:b, shoulder][:, None] + (truth[a - 1, arm] - truth[a - 1, shoulder])[None]
+        conf[a:b, arm] = CONFIDENCE_INFERRED
+        motion = Motion(x, conf, np.arange(len(x)) / RATE, RATE, KV2)
+        cfg = EngineConfig(rate_hz=RATE)
+        out, _ = clean_motion(motion, cfg)
+        limited, _ = clean_motion(motion, cfg, BridgingWindowSolver(travel_speed_mps=None))
+        e_in, e_out, e_lim = (_err(y, truth, a, b, arm) for y in (x, out.positions, limited.positions))
+        print(f"right arm frozen {a}-{b}: input {e_in * 1000:.0f} mm, clean {e_out * 1000:.0f}, "
+              f"limited while walking {e_lim * 1000:.0f}")
+        assert out.recovered[a + 20:b, arm].all()
+        assert e_out < 0.9 * e_lim and e_out < 0.75 * e_in

@@ -53,10 +53,13 @@ whole limb missing, PCA on seconds of history guesses its pose from coincidental
 correlations with the rest of the body (the seated ankle's partners include the left
 hand, resting on the knee), and an arm moves on its own, which nothing else in the body
 tells the prior (a gesturing Kinect arm). Except while the body travels
-(:data:`TRAVEL_SPEED_MPS`): a walking body's arms swing with its gait, which the rest of
-the body does tell the prior, and an arm held near its last pose while the body walks on
-loses the swing (on the sensor protocol's walking takes, frozen and dropped limbs were
-filled closer to the truth with the prior's arms free there; no window of the paired or
+(:data:`TRAVEL_SPEED_MPS`), for every source: a walking body's limbs swing with its gait,
+which the rest of the body does tell the prior and PCA (whose history is the same gait),
+and a limb held near its last pose while the body walks on loses the swing. The frozen
+limb a sensor reports is exactly that held pose, so with the limit on, a frozen limb
+released with no far end in the window (``serve``'s 0.5 s lookahead) was filled back onto
+the frozen guess (on the sensor protocol's walking takes, frozen and dropped limbs were
+filled closer to the truth with the fills free there; no window of the paired or
 real-Kinect recordings, whose people exercise, gesture or sit in place, travels that
 fast). The prior's fills of the legs and trunk are not limited: their motion is what it
 learnt from an hour of real motion, and held near the last sample they lag a walking body
@@ -149,14 +152,14 @@ MIN_HISTORY_S = 3.0
 FILL_CONFIDENCE = 0.25
 """Confidence of a bridged sample as the solver sees it (below 'inferred' 0.5)."""
 EXCURSION_SOURCES = ("pca",)
-"""Fill sources whose samples the excursion limit applies to (every joint)."""
+"""Fill sources whose samples the excursion limit applies to (every joint; not while the body travels)."""
 PRIOR_LIMITED_LIMBS = ("left_arm", "right_arm")
 """Limbs (``streamfix.canonical.CANONICAL_LIMBS``) whose prior fills the excursion limit still
 applies to: an arm moves on its own, which the rest of the body cannot tell the prior..."""
 TRAVEL_SPEED_MPS = 0.5
 """... unless the body travels at this net speed (m/s) or faster over the context and window
-(:func:`streamfix.core.excursion.travel_speed`): then the arms swing with the gait, which the
-rest of the body does tell the prior (None = always limited)."""
+(:func:`streamfix.core.excursion.travel_speed`): then the limbs swing with the gait, which the
+rest of the body does tell the prior and PCA (None = always limited)."""
 VERIFY_HISTORY_S = 1.0
 """Seconds of clean history a body needs before the prior's fill may take the place of the
 sensor's inferred samples it is checked against (``verify_inferred``): at a stream's start
@@ -245,8 +248,8 @@ class BridgingWindowSolver:
     ``sources``: the fill sources tried, from ``("time", "pca", "prior")`` (``time`` first
     when given: closed whole-frame blackouts, :func:`closed_blackout_mask`).
     ``use_prior``: None = whenever a prior is shipped for the skeleton's joint count.
-    ``travel_speed_mps``: the prior's arm fills are excursion-limited unless the body
-    travels this fast (:data:`TRAVEL_SPEED_MPS`; None = always limited).
+    ``travel_speed_mps``: the excursion-limited fills (PCA's, the prior's arms) are limited
+    unless the body travels this fast (:data:`TRAVEL_SPEED_MPS`; None = always limited).
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
     :data:`HISTORY_S`).
     """
@@ -384,6 +387,7 @@ class BridgingWindowSolver:
             ext = np.where(use_short[..., None], guess, ext)
             ext_obs = ext_obs | use_short
         limited = np.zeros_like(done)  # fills the excursion limit applies to (see excursion_sources)
+        travelling = None  # the body's net speed reaches travel_speed_mps (computed once, when asked)
         for src in srcs:
             left = todo & ~done
             if not left.any():
@@ -414,13 +418,17 @@ class BridgingWindowSolver:
             use = left & mask & np.isfinite(est).all(axis=2)
             out[use] = est[use]
             done |= use
-            if src in self.excursion_sources:
-                limited |= use
-            elif (src == "prior" and self.prior_limited_limbs and use.any()
-                  and not self._travelling(ext, ext_obs, rate_hz)):
-                from ..prior.init import limb_joint_mask
+            if use.any() and (src in self.excursion_sources or (src == "prior" and self.prior_limited_limbs)):
+                if travelling is None:
+                    travelling = self._travelling(ext, ext_obs, rate_hz)
+                if travelling:
+                    pass  # a travelling body's limbs move with its gait: no limit (module doc)
+                elif src in self.excursion_sources:
+                    limited |= use
+                else:
+                    from ..prior.init import limb_joint_mask
 
-                limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]
+                    limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]
             if use.any():
                 counts[src] = int(use.sum())
         if gain is not None and limited.any():
