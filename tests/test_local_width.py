@@ -45,3 +45,37 @@ def test_take_fractional_interpolates_between_neighbouring_candidates():
     out = take_fractional(stack, np.array([0.0, 0.5, 1.25, 2.0]))
     np.testing.assert_allclose(out[:, 0], [0.0, 0.5, 1.25, 2.0])
     assert out.shape == (4, 2)
+
+
+def test_the_compiled_spread_gives_the_reference_per_frame_sums_bit_for_bit():
+    """clean_window scores each candidate from one pass over its bone lengths
+    (kernels.bone_spread_deviations with frames=True): the same window score and per-frame
+    sums, bit for bit, as the numpy references it replaces."""
+    import pytest
+
+    from streamfix.core import kernels
+    from streamfix.core.local_width import frame_sums
+
+    if not kernels.COMPILED:
+        pytest.skip("numba not available")
+    rng = np.random.default_rng(4)
+    x = rng.normal(scale=0.3, size=(90, 6, 3))
+    x[:, 5] = x[:, 4] + 0.001  # a bone below the minimum length: NaN, not counted
+    bones = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [4, 5], [0, 3], [1, 4], [2, 5], [0, 5]])
+    observed = rng.random((90, 6)) > 0.1
+    observed[:, 2] = False  # bones never seen
+    dev, per_frame = kernels.bone_spread_deviations(x, observed, bones, 0.02, frames=True)
+    lengths = np.where(observed[:, bones[:, 0]] & observed[:, bones[:, 1]],
+                       np.linalg.norm(x[:, bones[:, 1]] - x[:, bones[:, 0]], axis=2), np.nan)
+    seen = np.isfinite(lengths).any(axis=0)
+    typical = np.full(len(bones), np.nan)
+    typical[seen] = np.nanmedian(lengths[:, seen], axis=0)
+    counted = typical > 0.02
+    assert counted.sum() == 5  # the bones that count: neither unseen nor too short
+    ref_dev = np.full(len(bones), np.nan)
+    ref_dev[counted] = np.nanmedian(np.abs(lengths - typical)[:, counted], axis=0)
+    np.testing.assert_array_equal(dev, ref_dev)
+    sums, counts = frame_sums(per_frame, np.isfinite(dev))
+    ref_sums, ref_counts = frame_bone_deviation(x, observed, bones, 0.02)
+    np.testing.assert_array_equal(sums, ref_sums)
+    np.testing.assert_array_equal(counts, ref_counts)

@@ -826,7 +826,7 @@ def live_step(
 
 
 # --------------------------------------------------------------------------- bone spread
-def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma: no cover - compiled
+def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs, frame_dev, want_frames):  # pragma: no cover - compiled
     n_frames = positions.shape[0]
     lengths = np.empty(n_frames)
     buf = np.empty(n_frames)
@@ -862,25 +862,33 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs):  # pragma:
         s = buf[:n]
         s.sort()
         devs[b] = (s[(n - 1) // 2] + s[n // 2]) / 2.0
+        if want_frames:
+            for t in range(n_frames):
+                frame_dev[t, b] = abs(lengths[t] - typical)  # NaN where the bone is not seen
 
 
 _bone_spread_compiled = _jit(_bone_spread_loop)
 
 
-def bone_spread_deviations(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float) -> np.ndarray:
+def bone_spread_deviations(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float,
+                           frames: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Per bone ``(B,)``: median over frames of ``|l_t - median_t l|`` (m), NaN for a bone whose
     typical length is not above ``min_bone_m`` or that is never seen: the deviations
     :func:`streamfix.core.pipeline._bone_spread` averages, bit for bit (lengths where both
-    ends are ``observed`` ``(T, J)``). Needs numba (:data:`HAVE_NUMBA`)."""
+    ends are ``observed`` ``(T, J)``). ``frames=True`` also returns the per-frame deviations
+    ``|l_t - median_t l|`` ``(T, B)`` from the same lengths (NaN where the bone is not seen and
+    in the columns of bones whose per-bone value is NaN). Needs numba (:data:`HAVE_NUMBA`)."""
     if _bone_spread_compiled is None:
         raise RuntimeError("streamfix.core.kernels.bone_spread_deviations needs numba; use pipeline._bone_spread")
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     devs = np.empty(len(b))
+    x = np.ascontiguousarray(positions, dtype=np.float64)
+    frame_dev = np.full((x.shape[0], len(b)) if frames else (1, 1), np.nan)
     _bone_spread_compiled(
-        np.ascontiguousarray(positions, dtype=np.float64), np.ascontiguousarray(observed, dtype=np.bool_),
-        np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), float(min_bone_m), devs,
+        x, np.ascontiguousarray(observed, dtype=np.bool_),
+        np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]), float(min_bone_m), devs, frame_dev, bool(frames),
     )
-    return devs
+    return (devs, frame_dev) if frames else devs
 
 
 # --------------------------------------------------------------------------- shorth mode

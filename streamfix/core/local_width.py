@@ -18,7 +18,7 @@ from scipy.ndimage import correlate1d
 
 from .robust_stats import nanmedian
 
-__all__ = ["frame_bone_deviation", "local_width_index", "take_fractional"]
+__all__ = ["frame_bone_deviation", "frame_sums", "local_width_index", "take_fractional"]
 
 
 def frame_bone_deviation(
@@ -32,7 +32,15 @@ def frame_bone_deviation(
     lengths = np.where(seen, np.linalg.norm(positions[:, b[:, 1]] - positions[:, b[:, 0]], axis=2), np.nan)
     typical = nanmedian(lengths, axis=0)
     with np.errstate(invalid="ignore"):
-        dev = np.abs(lengths - typical)[:, typical > min_bone_m]
+        return frame_sums(np.abs(lengths - typical), typical > min_bone_m)
+
+
+def frame_sums(deviations: np.ndarray, counted_bones: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame_bone_deviation`'s ``(sums, counts)`` from per-frame bone deviations
+    ``(T, B)`` (m, NaN where not seen) and the bones that count ``(B,)`` bool: what a caller
+    that already has the deviations (:func:`streamfix.core.kernels.bone_spread_deviations`)
+    needs, summed exactly as the reference sums them."""
+    dev = deviations[:, np.asarray(counted_bones, dtype=bool)]
     counted = np.isfinite(dev)
     return np.where(counted, dev, 0.0).sum(axis=1), counted.sum(axis=1).astype(np.float64)
 

@@ -115,7 +115,7 @@ from .interpolate import (continuity_baseline, interpolate_linear, interpolate_s
                           neighbour_observations)
 from .isometry import bone_length_deviations, estimate_bone_lengths, gauss_newton_step, incidence_matrix
 from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
-from .local_width import frame_bone_deviation, local_width_index, take_fractional
+from .local_width import frame_bone_deviation, frame_sums, local_width_index, take_fractional
 from .rigid_motion import rigid_motion
 from .robust_stats import nanmedian
 
@@ -379,6 +379,18 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
     dev = bone_length_deviations(positions, observed, bones, min_bone_m)
     dev = dev[np.isfinite(dev)]
     return float(dev.mean()) if dev.size else 0.0
+
+
+def _bone_spread_and_frames(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
+                            min_bone_m: float) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
+    """:func:`_bone_spread` and :func:`streamfix.core.local_width.frame_bone_deviation` of one
+    estimate, from one computation of its bone lengths when the kernels are compiled."""
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if not (kernels.COMPILED and len(b)):
+        return _bone_spread(positions, observed, b, min_bone_m), frame_bone_deviation(positions, observed, b, min_bone_m)
+    dev, per_frame = kernels.bone_spread_deviations(positions, observed, b, min_bone_m, frames=True)
+    counted = np.isfinite(dev)
+    return (float(dev[counted].mean()) if counted.any() else 0.0), frame_sums(per_frame, counted)
 
 
 # --------------------------------------------------------------------------- stage 4
@@ -658,15 +670,16 @@ def clean_window(
     for h in widths:
         fit_h, resid_h, sup_h = _robust_fit(x, prior, h, cfg.scales_m)
         est_h = _estimate(x, obs3, fit_h, resid_h, cfg)
-        spreads[h] = _bone_spread(est_h, obs, rigid, cfg.min_bone_m)
-        if best is None or spreads[h] < spreads[best[0]]:
-            best = (h, fit_h, resid_h, sup_h)
         if local:
+            spreads[h], (s_h, n_h) = _bone_spread_and_frames(est_h, obs, rigid, cfg.min_bone_m)
             fits.append(fit_h)
             supports.append(sup_h)
-            s_h, n_h = frame_bone_deviation(est_h, obs, rigid, cfg.min_bone_m)
             dev_sums.append(s_h)
             dev_counts.append(n_h)
+        else:
+            spreads[h] = _bone_spread(est_h, obs, rigid, cfg.min_bone_m)
+        if best is None or spreads[h] < spreads[best[0]]:
+            best = (h, fit_h, resid_h, sup_h)
     h, fit, resid, sup = best
     chosen = h
     full = _kernel_mass(h)  # of a full window: where a fit has less inlier support, the median helps
