@@ -826,6 +826,60 @@ def live_step(
 
 
 # --------------------------------------------------------------------------- bone spread
+def _select_inplace(a, n, k):  # pragma: no cover - compiled
+    """The k-th smallest of ``a[:n]`` (no NaN), partially reordering ``a[:n]`` in place so
+    that ``a[:k]`` holds values <= it (Hoare's selection, median-of-three pivot): the value
+    a full sort would put at ``k``, in O(n) instead of O(n log n)."""
+    lo = 0
+    hi = n - 1
+    while hi > lo:
+        mid = (lo + hi) // 2
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i = lo
+        j = hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return a[k]
+    return a[k]
+
+
+_select_inplace_compiled = _jit(_select_inplace)
+
+
+def _select_median(a, n):  # pragma: no cover - compiled
+    """Median of ``a[:n]`` (n >= 1, no NaN) as a sort gives it, ``(s[(n-1)//2] + s[n//2]) / 2``,
+    by selection; reorders ``a[:n]``."""
+    upper = _select_inplace_compiled(a, n, n // 2)
+    if n % 2:
+        return (upper + upper) / 2.0
+    lower = a[0]
+    for i in range(1, n // 2):  # a[:n//2] holds the values <= upper: its largest is s[n//2 - 1]
+        if a[i] > lower:
+            lower = a[i]
+    return (lower + upper) / 2.0
+
+
+_select_median_compiled = _jit(_select_median)
+
+
 def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs, frame_dev, want_frames):  # pragma: no cover - compiled
     n_frames = positions.shape[0]
     lengths = np.empty(n_frames)
@@ -849,9 +903,7 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs, frame_dev, 
         devs[b] = np.nan
         if n == 0:
             continue
-        s = buf[:n]
-        s.sort()  # in place: no array allocated per bone
-        typical = (s[(n - 1) // 2] + s[n // 2]) / 2.0
+        typical = _select_median_compiled(buf, n)  # in place: no array allocated per bone
         if not typical > min_bone_m:
             continue
         n = 0
@@ -859,9 +911,7 @@ def _bone_spread_loop(positions, observed, bi, bj, min_bone_m, devs, frame_dev, 
             if lengths[t] == lengths[t]:
                 buf[n] = abs(lengths[t] - typical)
                 n += 1
-        s = buf[:n]
-        s.sort()
-        devs[b] = (s[(n - 1) // 2] + s[n // 2]) / 2.0
+        devs[b] = _select_median_compiled(buf, n)
         if want_frames:
             for t in range(n_frames):
                 frame_dev[t, b] = abs(lengths[t] - typical)  # NaN where the bone is not seen
