@@ -523,3 +523,53 @@ def test_twiced_binomial_keeps_quadratic_motion_and_removes_frame_jitter():
         assert abs((taps * k ** 2).sum()) < 1e-12  # a quadratic passes unchanged
         assert abs((taps * (-1.0) ** k).sum()) < 1e-12  # alternating jitter is removed
         assert abs((binomial_taps(h) * (np.arange(2 * h + 1) - h) ** 2).sum() - h / 2) < 1e-12
+
+
+# ----------------------------------------------------------------------------- released samples
+def releasing_solver(x_all, joint, start, seen, report=True):
+    """The identity solver, except that a window which has seen at least ``seen`` frames from
+    ``start`` on releases ``joint`` there (the sensor's frozen guess, as the default solver's
+    frozen-limb release judges it) and answers 1 m to the side; with ``report``, it says
+    so in ``info`` as the default solver does. ``x_all``: the whole input, to find where a
+    window ends."""
+    from streamfix.streaming.solver_api import RELEASED_KEY
+
+    def solve(positions, confidence, bones, bone_lengths, rate_hz, config=None, state=None, init=None):
+        last = positions[-1, 0]
+        end = int(np.flatnonzero((x_all[:, 0] == last).all(axis=1))[0]) + 1
+        out = positions.copy()
+        released = np.zeros(confidence.shape, bool)
+        if end - start >= seen:
+            first = max(0, start - (end - len(positions)))
+            released[first:, joint] = True
+            out[first:, joint, 0] += 1.0
+        info = {RELEASED_KEY: released} if report else {}
+        return WindowOutput(out, released | ~(confidence > 0), None, 1, True, info)
+
+    return solve
+
+
+@pytest.mark.parametrize("schedule", ["serve", "file"])
+def test_a_released_sample_takes_the_releasing_windows_value_alone(kinect, schedule):
+    """An older window that saw too little of a frozen run kept the sensor's pose there; the
+    newer window that released it is not blended with that: every frame is either wholly
+    the releasing windows' value or (no releasing window reached it) wholly the input's.
+    Without the report, the hand-over frames come out in between."""
+    x = kinect.positions
+    assert len(np.unique(x[:, 0, 0])) == len(x)  # a window's last frame tells where it ends
+    cfg = EngineConfig(rate_hz=30.0) if schedule == "serve" else EngineConfig.for_files(30.0)
+    start, joint = 60, 5
+    got = {}
+    for report in (True, False):
+        solver = releasing_solver(x, joint, start, cfg.lookahead, report)
+        clean = split(run(StreamEngine(KINECT_V2, cfg, solver), frames_of(kinect, uniform=True))[0])[1]
+        got[report] = body_array(clean)
+    shift = got[True][:, joint, 0] - x[:, joint, 0]
+    assert np.allclose(shift[:start], 0.0, atol=1e-12)
+    whole = np.isclose(shift, 1.0, rtol=0, atol=1e-12)
+    assert (whole | np.isclose(shift, 0.0, rtol=0, atol=1e-12)).all()
+    assert whole[start + cfg.lookahead:].all()
+    other = np.setdiff1d(np.arange(x.shape[1]), [joint])
+    assert np.array_equal(got[True][:, other], got[False][:, other])  # the other joints blend as before
+    blended = got[False][:, joint, 0] - x[:, joint, 0]
+    assert ((blended > 1e-3) & (blended < 1 - 1e-3)).any()  # the test can fail: blends exist without it

@@ -124,7 +124,7 @@ from ..core.excursion import (EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_refere
 from ..core.interpolate import missing_run_lengths
 from ..skeletons import Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
-from .solver_api import WindowOutput
+from .solver_api import RELEASED_KEY, WindowOutput
 
 __all__ = [
     "BridgingWindowSolver",
@@ -562,6 +562,7 @@ class BridgingWindowSolver:
         res = _with_recovered(res, replaced)
         if released is not None:
             res.state = ReleaseState(res.state, released)
+            res.info[RELEASED_KEY] = released  # the engine's blend lets these values stand alone
         if plant_weight is not None:
             # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
             from ..core.support import SupportConfig, smooth_planted

@@ -25,6 +25,12 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     was degraded beyond the lookahead, it is the first window covering ``n``
     (``prev_end <= n``). This makes each frame's value independent of when its
     windows finished (threaded and synchronous modes agree).
+
+    A sample the window released as the sensor's frozen guess (``job.released``) takes the
+    window's value alone: the older windows blended into it saw a shorter stretch of the
+    frozen run, too short to judge, and kept the frozen pose as a measurement (on
+    ``serve``'s 0.5 s lookahead, the first half second of every freeze). The windows
+    after it blend in as usual.
     """
     lo = max(job.start, body.final_upto, min(job.end - cfg.lookahead - 1, prev_end))
     if lo >= job.end:
@@ -36,7 +42,13 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     rows = np.arange(lo, job.end) % body.cap
     finite = np.isfinite(x).all(axis=2)
     wj = np.where(finite, w[:, None], 0.0)  # (n, J)
-    den = body.den[rows] + wj
+    before = body.den[rows]
+    if job.released is not None:
+        fresh = job.released[lo - job.start:] & finite  # what older windows blended there is dropped
+        if fresh.any():
+            before = np.where(fresh, 0.0, before)
+            body.recw[rows] = np.where(fresh, 0.0, body.recw[rows])
+    den = before + wj
     frac = np.divide(wj, den, out=np.zeros_like(wj), where=den > 0)
     mean = body.mean[rows]
     body.mean[rows] = mean + frac[..., None] * (np.where(finite[..., None], x, mean) - mean)

@@ -8,12 +8,18 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["NOISE_SHARE_KEY", "WindowOutput", "WindowSolver", "WindowSolverError"]
+__all__ = ["NOISE_SHARE_KEY", "RELEASED_KEY", "WindowOutput", "WindowSolver", "WindowSolverError"]
 
 NOISE_SHARE_KEY = "sensor_noise_share"
 """Key of a window solver's ``info``: in [0, 1], how much of the window is sensor noise
 that the engine may smooth at the output (:func:`~streamfix.streaming.overlap_add.smooth_output`); absent
 = 0, the output is left as the solver gave it. ``clean_window`` writes its stage-3 gate."""
+
+RELEASED_KEY = "released"
+"""Key of a window solver's ``info``: ``(T, J)`` bool, the samples it judged the sensor's
+frozen guess and replaced (:mod:`streamfix.streaming.frozen_release`). An older window that
+saw less of the run kept them as measurements; the engine lets this window's values stand
+alone there (:func:`~streamfix.streaming.overlap_add.blend_window`)."""
 
 WindowSolver = Callable[..., Any]
 """``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,
