@@ -10,7 +10,10 @@ Runs, with fixed seeds:
   issue 8's real-Kinect bars: tracked joints moved on average at most 1.5x what
   median_savgol moves them, bone-length CV at most 0.1x the input's, and no bone of an
   inferred limb more than 5 % from its left/right counterpart
-  (:func:`streamfix.core.metrics.inferred_bone_asymmetry`).
+  (:func:`streamfix.core.metrics.inferred_bone_asymmetry`). Beside them, what the geometry
+  asks of any method: the least mean move of the tracked joints that puts every bone at
+  its median length, or cuts every bone's length error to a tenth
+  (:func:`streamfix.core.rigid_bound.least_shift_to_rigid`), over median_savgol's move.
 
 Usage: ``python benchmarks/bench_accuracy.py [--seed N] [--json OUT]``. Writes
 ``benchmarks/results/accuracy.json`` (every record) and ``accuracy.md`` (what it printed).
@@ -145,6 +148,10 @@ def _main(tee: _Tee) -> int:
         print(f"  {'':<26} tracked joints moved {moved:.2f}x median_savgol's (bar {TRACKED_SHIFT_MAX})  bone CV "
               f"after/before {sf['bone_cv_ratio']:.3f} (bar {BONE_CV_MAX})  inferred limb vs mirror "
               + ("-" if asym is None else f"{100 * asym:.1f} %") + f" (bar {100 * INFERRED_ASYMMETRY_MAX:.0f} %)")
+        if ms["tracked_shift_m"]:  # what the geometry asks of any method (streamfix.core.rigid_bound)
+            print(f"  {'':<26} least move of tracked joints for bones at their median lengths "
+                  f"{sf['rigid_shift_bound_m'] / ms['tracked_shift_m']:.2f}x median_savgol's, for every bone's "
+                  f"length error cut to a tenth {sf['tenth_shift_bound_m'] / ms['tracked_shift_m']:.2f}x")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(recs, indent=1, default=float))

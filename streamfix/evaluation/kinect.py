@@ -10,6 +10,9 @@ For each file and method, a record::
      tracked_shift_m,                                # same on tracked joint-frames
      inferred_bone_cv, inferred_bone_cv_input,       # bone CV over frames with an inferred joint
      inferred_asymmetry, inferred_asymmetry_input,   # worst inferred-limb bone vs its mirror (fraction)
+     rigid_shift_bound_m, tenth_shift_bound_m,       # per file: the least mean move of tracked joint-frames
+                                                     #   that makes every bone its median length / cuts
+                                                     #   every bone's length error to a tenth (core.rigid_bound)
      time_s}
 
 ``*_ratio`` = after / before (lower is better). The ``level`` argument is ignored.
@@ -21,6 +24,7 @@ import time
 import numpy as np
 
 from ..core import metrics
+from ..core.rigid_bound import least_shift_to_rigid
 from ..limbs import mirror_bones
 from .registry import METHODS, load_motion, run_method
 
@@ -55,6 +59,9 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
         cv_inf_in = metrics.bone_length_cv(x, bones, any_inf) if any_inf.sum() >= 2 else None
         mirror = mirror_bones(motion.skeleton)
         asym_in = metrics.inferred_bone_asymmetry(x, inferred, bones, mirror)
+        n_tracked = max(int(tracked.sum()), 1)
+        rigid_bound = float(least_shift_to_rigid(x, obs, tracked, bones).sum()) / n_tracked
+        tenth_bound = float(least_shift_to_rigid(x, obs, tracked, bones, keep=0.1).sum()) / n_tracked
         for name in methods:
             t0 = time.perf_counter()
             y = run_method(name, x, conf, bones, motion.rate_hz, skeleton=motion.skeleton)
@@ -86,6 +93,8 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
                 "inferred_bone_cv_input": cv_inf_in,
                 "inferred_asymmetry": _finite(metrics.inferred_bone_asymmetry(y, inferred, bones, mirror)),
                 "inferred_asymmetry_input": _finite(asym_in),
+                "rigid_shift_bound_m": rigid_bound,
+                "tenth_shift_bound_m": tenth_bound,
                 "time_s": dt,
             })
     return records

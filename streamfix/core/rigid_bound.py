@@ -1,0 +1,72 @@
+"""How far joints must move, at the least, for every bone to keep one length.
+
+Why: a cleaner that makes a sensor's bones rigid has to move joints, and the real-Kinect
+bars of issue 8 ask for both steady bones and tracked joints that barely move. This says
+what rigid bones cost whatever the method: a bone whose length is off by ``e`` in a frame
+needs its two ends moved by ``|d_i| + |d_j| >= e`` together (the triangle inequality), so
+the least summed movement of the joints that count is at least the optimum of the linear
+program
+
+    minimise  sum_j c_j a_j   subject to   a_i + a_j >= e_b  for every bone b = (i, j),  a >= 0
+
+per frame, ``c_j`` 1 for a joint whose movement is counted (tracked) and 0 for one that may
+move freely (inferred or missing). Every output whose bones all have the target lengths
+moves the counted joints at least that much; the bound is what the geometry demands
+before any smoothing. Pure arrays in, numbers out (``scipy.optimize.linprog``, HiGHS).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linprog
+from scipy.sparse import csr_matrix
+
+__all__ = ["least_shift_to_rigid"]
+
+
+def least_shift_to_rigid(
+    positions: np.ndarray,
+    observed: np.ndarray,
+    counted: np.ndarray,
+    bones: np.ndarray,
+    lengths: np.ndarray | None = None,
+    keep: float = 0.0,
+) -> np.ndarray:
+    """``(T,)`` metres: per frame, the least summed movement of the ``counted`` joints that
+    puts every bone at its target length (the module's linear program; a lower bound).
+
+    ``positions`` ``(T, J, 3)`` m; ``observed`` ``(T, J)``: a bone is constrained in a frame
+    where both ends are observed; ``counted`` ``(T, J)``: joints whose movement is summed
+    (the others move for free); ``bones`` ``(B, 2)``; ``lengths`` ``(B,)`` m, the targets
+    (None: each bone's median over its observed frames, the constant length nearest the
+    sensor's in the mean); ``keep``: the fraction of each bone's length error that may
+    remain (0: rigid; 0.1: every bone's deviation from its length cut to a tenth, one way
+    to a bone-length CV a tenth of the input's).
+    """
+    if not 0.0 <= keep < 1.0:
+        raise ValueError(f"keep must be in [0, 1), got {keep}")
+    x = np.asarray(positions, dtype=np.float64)
+    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+    cost = np.asarray(counted, dtype=bool) & obs
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    T, J = obs.shape
+    if T == 0 or len(b) == 0:
+        return np.zeros(T)
+    seen = obs[:, b[:, 0]] & obs[:, b[:, 1]]
+    with np.errstate(invalid="ignore"):
+        length = np.where(seen, np.linalg.norm(x[:, b[:, 1]] - x[:, b[:, 0]], axis=2), np.nan)
+    if lengths is None:
+        lengths = np.full(len(b), np.nan)
+        some = np.isfinite(length).any(axis=0)
+        lengths[some] = np.nanmedian(length[:, some], axis=0)
+    excess = np.abs(length - np.asarray(lengths, dtype=np.float64)[None, :])
+    t, k = np.nonzero(np.isfinite(excess) & (excess > 0))
+    if len(t) == 0:
+        return np.zeros(T)
+    rows = np.repeat(np.arange(len(t)), 2)
+    cols = np.stack([t * J + b[k, 0], t * J + b[k, 1]], axis=1).ravel()
+    a_ub = csr_matrix((np.full(len(cols), -1.0), (rows, cols)), shape=(len(t), T * J))
+    need = (1.0 - float(keep)) * excess[t, k]
+    res = linprog(cost.ravel().astype(np.float64), A_ub=a_ub, b_ub=-need, bounds=(0, None), method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"least_shift_to_rigid: the linear program did not solve ({res.message})")
+    return (res.x.reshape(T, J) * cost).sum(axis=1)
