@@ -227,6 +227,7 @@ def motion_adaptive_smooth(y: np.ndarray, w: np.ndarray, rate_hz: float, cfg: "P
 
 # --------------------------------------------------------------------------- stage 1
 _PIVOT_RTOL = 1e-4  # LDL^T pivot / diagonal below this: cancellation, solve by LU instead
+_SPREAD_RTOL = 1e-9  # bone-spread scores this close (relative) are equal: rounding, not rigidity
 
 
 def _local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
@@ -692,8 +693,11 @@ def clean_window(
         spreads["local"] = _bone_spread(_estimate(x, obs3, local_fit, local_resid, cfg), obs, rigid, cfg.min_bone_m)
         # kept only if the window as a whole is as rigid: a short failure on one bone (a
         # limb thrown for a few frames) is diluted in a frame's mean over bones, and the
-        # shortest fit, which follows it, would otherwise win there
-        if spreads["local"] <= spreads[h]:
+        # shortest fit, which follows it, would otherwise win there. "As rigid" up to
+        # rounding: on exact data the short widths' scores tie, and a composite that differed
+        # from them in the last bit was dropped, and with it the wide fit it took where a
+        # limb jumped for a few frames (the window's median score does not see those frames)
+        if spreads["local"] <= spreads[h] * (1.0 + _SPREAD_RTOL):
             chosen, fit, resid = "local", local_fit, local_resid
             sup = take_fractional(np.array(supports), index)
             full = np.interp(index, np.arange(len(widths)), [_kernel_mass(w) for w in widths])[:, None, None]
