@@ -529,9 +529,9 @@ def test_twiced_binomial_keeps_quadratic_motion_and_removes_frame_jitter():
 def releasing_solver(x_all, joint, start, seen, report=True):
     """The identity solver, except that a window which has seen at least ``seen`` frames from
     ``start`` on releases ``joint`` there (the sensor's frozen guess, as the default solver's
-    frozen-limb release judges it) and answers 1 m to the side; with ``report``, it says
-    so in ``info`` as the default solver does. ``x_all``: the whole input, to find where a
-    window ends."""
+    frozen-limb release judges it) and answers about 1 m to the side (1 m + 1 mm per frame of
+    its end, so windows differ); with ``report``, it says so in ``info`` as the default solver
+    does. ``x_all``: the whole input, to find where a window ends."""
     from streamfix.streaming.solver_api import RELEASED_KEY
 
     def solve(positions, confidence, bones, bone_lengths, rate_hz, config=None, state=None, init=None):
@@ -542,7 +542,7 @@ def releasing_solver(x_all, joint, start, seen, report=True):
         if end - start >= seen:
             first = max(0, start - (end - len(positions)))
             released[first:, joint] = True
-            out[first:, joint, 0] += 1.0
+            out[first:, joint, 0] += 1.0 + 0.001 * end
         info = {RELEASED_KEY: released} if report else {}
         return WindowOutput(out, released | ~(confidence > 0), None, 1, True, info)
 
@@ -550,11 +550,12 @@ def releasing_solver(x_all, joint, start, seen, report=True):
 
 
 @pytest.mark.parametrize("schedule", ["serve", "file"])
-def test_a_released_sample_takes_the_releasing_windows_value_alone(kinect, schedule):
-    """An older window that saw too little of a frozen run kept the sensor's pose there; the
-    newer window that released it is not blended with that: every frame is either wholly
-    the releasing windows' value or (no releasing window reached it) wholly the input's.
-    Without the report, the hand-over frames come out in between."""
+def test_a_released_sample_drops_what_windows_that_kept_it_blended(kinect, schedule):
+    """An older window that saw too little of a frozen run kept the sensor's pose there; what
+    it blended into a sample a newer window released is dropped: every frame is either
+    wholly the releasing windows' values or (no releasing window reached it) wholly the
+    input's. The releasing windows crossfade with each other as usual. Without the report,
+    the hand-over frames come out between the input and the release."""
     x = kinect.positions
     assert len(np.unique(x[:, 0, 0])) == len(x)  # a window's last frame tells where it ends
     cfg = EngineConfig(rate_hz=30.0) if schedule == "serve" else EngineConfig.for_files(30.0)
@@ -566,9 +567,12 @@ def test_a_released_sample_takes_the_releasing_windows_value_alone(kinect, sched
         got[report] = body_array(clean)
     shift = got[True][:, joint, 0] - x[:, joint, 0]
     assert np.allclose(shift[:start], 0.0, atol=1e-12)
-    whole = np.isclose(shift, 1.0, rtol=0, atol=1e-12)
-    assert (whole | np.isclose(shift, 0.0, rtol=0, atol=1e-12)).all()
-    assert whole[start + cfg.lookahead:].all()
+    released = shift > 1.0 - 1e-9  # only releasing windows' values (each 1 m + 1 mm per frame of its end)
+    assert (released | np.isclose(shift, 0.0, rtol=0, atol=1e-12)).all()
+    assert released[start + cfg.lookahead:].all()
+    one_window = np.isclose(shift[released][:, None], 1.0 + 0.001 * np.arange(len(x) + 1)[None, :],
+                            rtol=0, atol=1e-9).any(axis=1)
+    assert not one_window.all()  # some frames are crossfades of two releasing windows
     other = np.setdiff1d(np.arange(x.shape[1]), [joint])
     assert np.array_equal(got[True][:, other], got[False][:, other])  # the other joints blend as before
     blended = got[False][:, joint, 0] - x[:, joint, 0]

@@ -102,6 +102,7 @@ class Body:
         self.smooth = np.zeros((cap, J, 3))  # the blended mean smoothed over time (overlap_add.smooth_output)
         self.smooth_for = np.full(cap, -1, dtype=np.int64)  # the timeline frame each smooth row holds
         self.noise = np.zeros((cap, J))  # the windows' noise_share, blended like the positions
+        self.released_only = np.zeros((cap, J), dtype=bool)  # blended from windows that released it only
         self.live = np.full((cap, J, 3), np.nan)
         self.live_rec = np.zeros((cap, J), dtype=bool)
         self.conf = np.zeros((cap, J))

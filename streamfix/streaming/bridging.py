@@ -421,14 +421,13 @@ class BridgingWindowSolver:
             if use.any() and (src in self.excursion_sources or (src == "prior" and self.prior_limited_limbs)):
                 if travelling is None:
                     travelling = self._travelling(ext, ext_obs, rate_hz)
-                if travelling:
-                    pass  # a travelling body's limbs move with its gait: no limit (module doc)
-                elif src in self.excursion_sources:
-                    limited |= use
-                else:
-                    from ..prior.init import limb_joint_mask
+                if not travelling:  # a travelling body's limbs move with its gait: no limit (module doc)
+                    if src in self.excursion_sources:
+                        limited |= use
+                    else:
+                        from ..prior.init import limb_joint_mask
 
-                    limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]
+                        limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]
             if use.any():
                 counts[src] = int(use.sum())
         if gain is not None and limited.any():
@@ -562,7 +561,7 @@ class BridgingWindowSolver:
         res = _with_recovered(res, replaced)
         if released is not None:
             res.state = ReleaseState(res.state, released)
-            res.info[RELEASED_KEY] = released  # the engine's blend lets these values stand alone
+            res.info[RELEASED_KEY] = released  # the engine's blend drops older windows that kept them
         if plant_weight is not None:
             # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
             from ..core.support import SupportConfig, smooth_planted

@@ -31,8 +31,8 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
   therefore sum to 1 for every frame, and the mean is accumulated incrementally as
   ``m <- m + w / (sum w) (x - m)``, so a window solver that returns its input leaves
   the input unchanged bit for bit. A sample a window released as the sensor's frozen
-  guess (its ``info[RELEASED_KEY]``) restarts that mean at the window's value: the older
-  windows saw too little of the frozen run to judge it and kept the sensor's pose
+  guess (its ``info[RELEASED_KEY]``) drops what older windows that kept it blended: they
+  saw too little of the frozen run to judge it and kept the sensor's pose
   (:func:`~streamfix.streaming.overlap_add.blend_window`).
 * where the windows report sensor noise (their ``info[NOISE_SHARE_KEY]``, blended like
   the positions; ``clean_window``'s stage-3 gate), the blended values are then smoothed
@@ -456,6 +456,7 @@ class StreamEngine:
             body.den[k] = 0.0
             body.recw[k] = 0.0
             body.noise[k] = 0.0
+            body.released_only[k] = False
             if bid in present_ids:
                 t0 = time.perf_counter()
                 bf = inputs.get(bid)

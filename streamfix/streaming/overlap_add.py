@@ -26,11 +26,12 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     (``prev_end <= n``). This makes each frame's value independent of when its
     windows finished (threaded and synchronous modes agree).
 
-    A sample the window released as the sensor's frozen guess (``job.released``) takes the
-    window's value alone: the older windows blended into it saw a shorter stretch of the
+    A sample the window released as the sensor's frozen guess (``job.released``) drops what
+    older windows that did not release it blended there: they saw a shorter stretch of the
     frozen run, too short to judge, and kept the frozen pose as a measurement (on
-    ``serve``'s 0.5 s lookahead, the first half second of every freeze). The windows
-    after it blend in as usual.
+    ``serve``'s 0.5 s lookahead, the first half second of every freeze). Windows that
+    released it blend with each other as usual (``body.released_only``), so a released
+    limb keeps its crossfade at every hand-over.
     """
     lo = max(job.start, body.final_upto, min(job.end - cfg.lookahead - 1, prev_end))
     if lo >= job.end:
@@ -44,10 +45,14 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     wj = np.where(finite, w[:, None], 0.0)  # (n, J)
     before = body.den[rows]
     if job.released is not None:
-        fresh = job.released[lo - job.start:] & finite  # what older windows blended there is dropped
+        released = job.released[lo - job.start:] & finite
+        fresh = released & ~body.released_only[rows]  # older windows that kept the sample: dropped
         if fresh.any():
             before = np.where(fresh, 0.0, before)
             body.recw[rows] = np.where(fresh, 0.0, body.recw[rows])
+        body.released_only[rows] = np.where(finite, released, body.released_only[rows])
+    elif finite.any():
+        body.released_only[rows] = body.released_only[rows] & ~finite
     den = before + wj
     frac = np.divide(wj, den, out=np.zeros_like(wj), where=den > 0)
     mean = body.mean[rows]
