@@ -39,3 +39,16 @@ def test_a_projection_to_rigid_bones_moves_the_joints_at_least_the_bound(shared_
     left = np.abs(np.linalg.norm(y[:, bones[:, 1]] - y[:, bones[:, 0]], axis=2) - lengths).sum(axis=1)
     assert (bound <= moved + left + 1e-9).all()  # rigid (to what the projection left) costs at least the bound
     assert bound.mean() > 0.5 * moved.mean()  # and the bound is not vacuous: within 2x of a real method
+
+
+def test_frames_solved_in_chunks_give_the_same_bound(shared_data, monkeypatch):
+    from streamfix.core import rigid_bound
+
+    m = read_motion(shared_data / "kinect_v2" / "seated_joints.csv")
+    observed = np.isfinite(m.positions).all(axis=2) & (m.confidence > 0)
+    tracked = observed & (m.confidence >= 1.0)
+    whole = least_shift_to_rigid(m.positions, observed, tracked, m.skeleton.bone_array)
+    monkeypatch.setattr(rigid_bound, "CHUNK_FRAMES", 37)
+    chunked = least_shift_to_rigid(m.positions, observed, tracked, m.skeleton.bone_array)
+    np.testing.assert_allclose(chunked, whole, rtol=1e-7, atol=1e-9)
+    assert whole.sum() > 0

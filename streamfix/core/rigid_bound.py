@@ -20,7 +20,10 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.sparse import csr_matrix
 
-__all__ = ["least_shift_to_rigid"]
+__all__ = ["least_shift_to_rigid", "CHUNK_FRAMES"]
+
+CHUNK_FRAMES = 1000
+"""Frames solved as one program (each frame's is independent; a chunk keeps HiGHS's memory bounded)."""
 
 
 def least_shift_to_rigid(
@@ -58,15 +61,27 @@ def least_shift_to_rigid(
         lengths = np.full(len(b), np.nan)
         some = np.isfinite(length).any(axis=0)
         lengths[some] = np.nanmedian(length[:, some], axis=0)
-    excess = np.abs(length - np.asarray(lengths, dtype=np.float64)[None, :])
-    t, k = np.nonzero(np.isfinite(excess) & (excess > 0))
+    need = (1.0 - float(keep)) * np.abs(length - np.asarray(lengths, dtype=np.float64)[None, :])
+    out = np.zeros(T)
+    # frames are independent programs: solved CHUNK_FRAMES at a time, so a long recording
+    # costs time in proportion and bounded memory
+    for s in range(0, T, CHUNK_FRAMES):
+        e = min(T, s + CHUNK_FRAMES)
+        out[s:e] = _solve_frames(need[s:e], cost[s:e], b)
+    return out
+
+
+def _solve_frames(need: np.ndarray, cost: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """The module's program for frames ``need`` ``(n, B)`` m (NaN: bone unconstrained) and
+    ``cost`` ``(n, J)`` bool, as one block-diagonal program; ``(n,)`` optima."""
+    n, J = cost.shape
+    t, k = np.nonzero(np.isfinite(need) & (need > 0))
     if len(t) == 0:
-        return np.zeros(T)
+        return np.zeros(n)
     rows = np.repeat(np.arange(len(t)), 2)
-    cols = np.stack([t * J + b[k, 0], t * J + b[k, 1]], axis=1).ravel()
-    a_ub = csr_matrix((np.full(len(cols), -1.0), (rows, cols)), shape=(len(t), T * J))
-    need = (1.0 - float(keep)) * excess[t, k]
-    res = linprog(cost.ravel().astype(np.float64), A_ub=a_ub, b_ub=-need, bounds=(0, None), method="highs")
+    cols = np.stack([t * J + bones[k, 0], t * J + bones[k, 1]], axis=1).ravel()
+    a_ub = csr_matrix((np.full(len(cols), -1.0), (rows, cols)), shape=(len(t), n * J))
+    res = linprog(cost.ravel().astype(np.float64), A_ub=a_ub, b_ub=-need[t, k], bounds=(0, None), method="highs")
     if res.status != 0:
         raise RuntimeError(f"least_shift_to_rigid: the linear program did not solve ({res.message})")
-    return (res.x.reshape(T, J) * cost).sum(axis=1)
+    return (res.x.reshape(n, J) * cost).sum(axis=1)
