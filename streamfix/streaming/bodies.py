@@ -40,7 +40,8 @@ def output_confidence(pos: np.ndarray, conf_in: np.ndarray | None, recovered: np
     :data:`RECOVERED_CONFIDENCE` for recovered ones, 0 where there is no position."""
     finite = np.isfinite(pos).all(axis=1)
     base = np.zeros(len(pos)) if conf_in is None else np.asarray(conf_in, dtype=np.float64)
-    return np.where(finite, np.where(recovered, RECOVERED_CONFIDENCE, base), 0.0)
+    out = np.where(recovered, RECOVERED_CONFIDENCE, base)
+    return out if finite.all() else np.where(finite, out, 0.0)
 
 
 class Job:

@@ -75,9 +75,13 @@ class RingBuffer:
         pos = self._pos
         pos[i] = positions
         valid = (np.asarray(confidence) > 0) & np.isfinite(pos[i]).all(axis=1)
-        pos[i][~valid] = np.nan
-        pos[j] = pos[i]
-        self._conf[i] = self._conf[j] = np.where(valid, confidence, 0.0)
+        if valid.all():  # the usual frame: nothing to blank
+            pos[j] = pos[i]
+            self._conf[i] = self._conf[j] = confidence
+        else:
+            pos[i][~valid] = np.nan
+            pos[j] = pos[i]
+            self._conf[i] = self._conf[j] = np.where(valid, confidence, 0.0)
         self._valid[i] = self._valid[j] = valid
         self._time[i] = self._time[j] = time_ns
         self.count += 1
