@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d
 
+from .isometry import bone_lengths_per_frame
 from .robust_stats import nanmedian
 
 __all__ = ["frame_bone_deviation", "frame_sums", "local_width_index", "take_fractional"]
@@ -29,7 +30,7 @@ def frame_bone_deviation(
     :func:`streamfix.core.isometry.bone_length_deviations` counts)."""
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     seen = observed[:, b[:, 0]] & observed[:, b[:, 1]]
-    lengths = np.where(seen, np.linalg.norm(positions[:, b[:, 1]] - positions[:, b[:, 0]], axis=2), np.nan)
+    lengths = np.where(seen, bone_lengths_per_frame(positions, b), np.nan)
     typical = nanmedian(lengths, axis=0)
     with np.errstate(invalid="ignore"):
         return frame_sums(np.abs(lengths - typical), typical > min_bone_m)

@@ -20,6 +20,9 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.sparse import csr_matrix
 
+from .isometry import bone_lengths_per_frame
+from .robust_stats import nanmedian
+
 __all__ = ["least_shift_to_rigid", "CHUNK_FRAMES"]
 
 CHUNK_FRAMES = 1000
@@ -54,13 +57,9 @@ def least_shift_to_rigid(
     T, J = obs.shape
     if T == 0 or len(b) == 0:
         return np.zeros(T)
-    seen = obs[:, b[:, 0]] & obs[:, b[:, 1]]
-    with np.errstate(invalid="ignore"):
-        length = np.where(seen, np.linalg.norm(x[:, b[:, 1]] - x[:, b[:, 0]], axis=2), np.nan)
+    length = np.where(obs[:, b[:, 0]] & obs[:, b[:, 1]], bone_lengths_per_frame(x, b), np.nan)
     if lengths is None:
-        lengths = np.full(len(b), np.nan)
-        some = np.isfinite(length).any(axis=0)
-        lengths[some] = np.nanmedian(length[:, some], axis=0)
+        lengths = nanmedian(length, axis=0)  # NaN for a bone never seen: unconstrained
     need = (1.0 - float(keep)) * np.abs(length - np.asarray(lengths, dtype=np.float64)[None, :])
     out = np.zeros(T)
     # frames are independent programs: solved CHUNK_FRAMES at a time, so a long recording
