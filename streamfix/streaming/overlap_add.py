@@ -43,16 +43,13 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     rows = np.arange(lo, job.end) % body.cap
     finite = np.isfinite(x).all(axis=2)
     wj = np.where(finite, w[:, None], 0.0)  # (n, J)
+    released = finite & (False if job.released is None else job.released[lo - job.start:])
     before = body.den[rows]
-    if job.released is not None:
-        released = job.released[lo - job.start:] & finite
-        fresh = released & ~body.released_only[rows]  # older windows that kept the sample: dropped
-        if fresh.any():
-            before = np.where(fresh, 0.0, before)
-            body.recw[rows] = np.where(fresh, 0.0, body.recw[rows])
-        body.released_only[rows] = np.where(finite, released, body.released_only[rows])
-    elif finite.any():
-        body.released_only[rows] = body.released_only[rows] & ~finite
+    fresh = released & ~body.released_only[rows]  # older windows that kept the sample: dropped
+    if fresh.any():
+        before = np.where(fresh, 0.0, before)
+        body.recw[rows] = np.where(fresh, 0.0, body.recw[rows])
+    body.released_only[rows] = np.where(finite, released, body.released_only[rows])
     den = before + wj
     frac = np.divide(wj, den, out=np.zeros_like(wj), where=den > 0)
     mean = body.mean[rows]
