@@ -95,6 +95,16 @@ the person really holds still while the other one moves, which looks the same: i
 replaced by the fill as well (the sensor protocol's ``flagged`` kind scores that cost;
 ``benchmarks/results/sensor.md`` has the figures).
 
+Dislocated hands and feet released (``release_dislocated``, on by default)
+-------------------------------------------------------------------------
+A hand, hand tip, thumb or foot whose bone to its parent is off the body's length by
+half or more (and 3 cm or more) for a third of a second, while the parent sits where its
+own bone allows, is a sensor failure however it is flagged (a hand laid on the wrist):
+those samples become missing, after foot support (whose planted legs have their lengths)
+and before the bridge and the window pipeline, which fill them
+(:mod:`streamfix.core.dislocated`). Nothing is judged before the engine has the body's
+lengths. ``tests/test_dislocated.py`` measures it on the KERAAL take.
+
 Inferred limbs checked against the prior (``verify_inferred``, off by default)
 -----------------------------------------------------------------------------
 A sensor that loses a limb keeps reporting it, flagged inferred: frozen in its last pose
@@ -251,7 +261,8 @@ class BridgingWindowSolver:
     ``travel_speed_mps``: the excursion-limited fills (PCA's, the prior's arms) are limited
     unless the body travels this fast (:data:`TRAVEL_SPEED_MPS`; None = always limited).
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
-    :data:`HISTORY_S`).
+    :data:`HISTORY_S`). ``release_frozen`` / ``release_dislocated`` / ``verify_inferred`` /
+    ``foot_support`` / ``undo_swaps``: the real-sensor stages in the module doc.
     """
 
     wants_history = True
@@ -276,6 +287,7 @@ class BridgingWindowSolver:
         travel_speed_mps: float | None = TRAVEL_SPEED_MPS,
         verify_inferred: bool = False,
         release_frozen: bool = True,
+        release_dislocated: bool = True,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -291,6 +303,7 @@ class BridgingWindowSolver:
         self.undo_swaps = bool(undo_swaps)
         self.verify_inferred = bool(verify_inferred)
         self.release_frozen = bool(release_frozen)
+        self.release_dislocated = bool(release_dislocated)
         self._limb_joints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # limb joints, mirrors
         if prior_method not in ("latent", "encode"):
             raise ValueError(f"prior_method must be 'latent' or 'encode', got {prior_method!r}")
@@ -528,10 +541,7 @@ class BridgingWindowSolver:
         if self.release_frozen and skeleton is not None:
             # inferred limbs that stopped bending (the sensor's frozen or drifting guess,
             # core/frozen.py) become missing: the bridge and the solver fill them
-            layout = self._limb_joints.get(skeleton.name)
-            if layout is None:
-                layout = self._limb_joints[skeleton.name] = limb_layout(skeleton)
-            frozen = frozen_release(x, conf, bones, rate_hz, layout, released_before)
+            frozen = frozen_release(x, conf, bones, rate_hz, self._layout(skeleton), released_before)
             if frozen.any():
                 x = np.where(frozen[..., None], np.nan, x)
                 conf = np.where(frozen, 0.0, conf)
@@ -554,6 +564,18 @@ class BridgingWindowSolver:
                 plant_weight = weight
                 replaced = (weight > 0.5) if replaced is None else (replaced | (weight > 0.5))
                 conf = np.where(weight > 0, np.minimum(conf, FILL_CONFIDENCE * 2), conf)
+        if self.release_dislocated and skeleton is not None:
+            # a hand or foot held far off its bone's length for a run of frames (collapsed
+            # onto the wrist, thrown off): not a measurement, the gap fill replaces it
+            # (core/dislocated.py); after foot support, whose planted legs have their lengths
+            from ..core.dislocated import dislocated_ends
+
+            dislocated = dislocated_ends(x, conf, bones, bone_lengths, rate_hz, joints=self._layout(skeleton)[0])
+            if dislocated.any():
+                x = np.where(dislocated[..., None], np.nan, x)
+                conf = np.where(dislocated, 0.0, conf)
+                obs = conf > 0
+                replaced = dislocated if replaced is None else (replaced | dislocated)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
         if replaced is None:
@@ -568,6 +590,13 @@ class BridgingWindowSolver:
 
             res.positions = smooth_planted(res.positions, plant_weight, rate_hz, SupportConfig().planted_smooth_s)
         return res
+
+    def _layout(self, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+        """The skeleton's limb joints and left/right twins (``frozen_release.limb_layout``), cached."""
+        layout = self._limb_joints.get(skeleton.name)
+        if layout is None:
+            layout = self._limb_joints[skeleton.name] = limb_layout(skeleton)
+        return layout
 
     def _verify_inferred(self, x, conf, obs, bones, rate_hz, history, skeleton: Skeleton):
         """(positions, confidence, replaced mask or None): long runs of inferred samples

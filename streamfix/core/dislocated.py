@@ -1,0 +1,132 @@
+"""Hands and feet a sensor holds at an impossible distance from the joint they hang on.
+
+Why: a depth sensor that loses a hand or a foot often keeps reporting it, *tracked*, at
+the wrong place: the hand collapses onto the wrist (KERAAL's Kinect v2 with the arms
+overhead: the wrist-hand bone at 2.2 cm of its 5.9 for the last 0.8 s of the take, the
+hand 14 cm from the Vicon) or a foot folds onto the ankle. Such a plateau lasts longer
+than the robust temporal fit's half-width, so the fit follows it and the samples are not
+outliers; the bone projection then restores the length but splits the error between the
+two ends, leaving the hand where the sensor put it. A bone far off its length for a run of
+frames says the sample is not a measurement, so it is released (made missing) and the gap
+fill puts the joint back from the rest of the body and from time.
+
+Only the *end* segments are judged: a bone whose distal joint carries at most
+``MAX_SUBTREE`` joints (a hand with its tip, a foot, a thumb, a head). A longer chain (a hip
+or collar bone, whose distal joint carries a whole limb) is not released for one bone's
+length: on UI-PRMD's Kinect v1 the short hip and collar bones leave half their length
+for a second at a time while the limb below is tracked well, and releasing a limb for it
+would replace good samples. The end segments' lengths are noisy (a Kinect thumb or hand
+tip jitters by a third of its length), so a sample counts only when the error exceeds
+``FRACTION`` of the length *and* ``FLOOR_M``, for ``MIN_RUN_S`` or longer (shorter
+failures are the temporal fit's outliers).
+
+Arrays: positions ``(T, J, 3)`` metres, confidence ``(T, J)``, bones ``(B, 2)`` (parent, child).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .excursion import parents_from_bones
+from .interpolate import missing_run_lengths
+from .isometry import bone_lengths_per_frame
+
+__all__ = ["dislocated_ends", "end_segments", "FRACTION", "FLOOR_M", "MIN_RUN_S", "PROXIMAL_FRACTION", "MAX_SUBTREE"]
+
+FRACTION = 0.5
+"""A bone's length error, as a fraction of its length, beyond which a sample is impossible."""
+
+FLOOR_M = 0.03
+"""...and beyond this (m): a Kinect hand tip or thumb, 3-7 cm long, jitters by a centimetre
+or more at each end, and the sensor protocol's correlated noise alone put such bones past
+2.5 cm for a sixth of a second about 270 times in its 42 takes (past 3 cm: 90)."""
+
+MIN_RUN_S = 1.0 / 3.0
+"""Shortest run (s) of such samples released. Shorter failures are the temporal fit's
+outliers; and a bone does not say which of its ends is wrong, so a wrist thrown off for a
+few frames (the sensor protocol's jumps last 3-9 frames) would release the hand below it."""
+
+PROXIMAL_FRACTION = 0.2
+"""The bone into the proximal joint must be within this fraction of its length: KERAAL's
+forearm was 9 % short while the hand lay on the wrist; a wrist thrown 15 cm or more (the
+sensor protocol's jumps) leaves a 25 cm forearm outside it in most directions."""
+
+MAX_SUBTREE = 2
+"""Most joints an end segment's distal joint may carry, itself included (a hand and its tip)."""
+
+
+def end_segments(bones: np.ndarray, n_joints: int, max_subtree: int = MAX_SUBTREE) -> np.ndarray:
+    """``(B, J)`` bool: for each bone whose distal joint carries at most ``max_subtree``
+    joints (itself included), those joints; all False for the other bones."""
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    parents = parents_from_bones(b, n_joints)
+    # below[i, j]: j is i or hangs below i (transitive closure of the parent relation)
+    below = np.eye(n_joints, dtype=bool)
+    for _ in range(n_joints):
+        grown = below | below[:, np.maximum(parents, 0)] & (parents >= 0)[None, :]
+        if (grown == below).all():
+            break
+        below = grown
+    subtree = below[b[:, 1]]  # (B, J): the child end and what hangs below it
+    return subtree & (subtree.sum(axis=1) <= max_subtree)[:, None]
+
+
+def dislocated_ends(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray | None,
+    rate_hz: float,
+    *,
+    fraction: float = FRACTION,
+    floor_m: float = FLOOR_M,
+    min_run_s: float = MIN_RUN_S,
+    max_subtree: int = MAX_SUBTREE,
+    joints: np.ndarray | None = None,
+    proximal_fraction: float = PROXIMAL_FRACTION,
+) -> np.ndarray:
+    """``(T, J)`` bool: observed samples of an end segment (:func:`end_segments`) whose *tracked*
+    distal joint's bone
+    to its parent is off its length by more than ``fraction`` of it and ``floor_m`` for at
+    least ``min_run_s`` seconds in a row. ``bone_lengths`` ``(B,)`` m: the body's lengths
+    (NaN: that bone is not judged); None: nothing is judged. Never the window's own: at a
+    stream's start a 16-frame window whose wrist the sensor threw off for half of it has a
+    median hand bone between the two, and every one of its frames looked off.
+    A sample counts only where the bone into the proximal joint is within
+    ``proximal_fraction`` of its length (that joint is where its bone allows).
+    ``joints`` ``(J,)`` bool: only end segments whose distal joint is one of these (None = any;
+    the bridge passes the limbs', so a neck and head are not judged by one short bone)."""
+    x = np.asarray(positions, dtype=np.float64)
+    conf = np.asarray(confidence, dtype=np.float64)
+    T, J = conf.shape
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    out = np.zeros((T, J), dtype=bool)
+    if T == 0 or not len(b) or bone_lengths is None:
+        return out
+    ends = end_segments(b, J, max_subtree)
+    judged = ends.any(axis=1)
+    if joints is not None:
+        judged &= np.asarray(joints, dtype=bool)[b[:, 1]]
+    if not judged.any():
+        return out
+    lengths = bone_lengths_per_frame(x, b)  # (T, B), NaN where an end is missing
+    seen = (conf[:, b[:, 0]] > 0) & (conf[:, b[:, 1]] > 0) & np.isfinite(lengths)
+    target = np.asarray(bone_lengths, dtype=np.float64)
+    error = np.abs(np.where(seen, lengths, np.inf) - target)  # inf: unseen; NaN: no length known
+    # a bone does not say which of its ends is wrong: the distal one is released only where
+    # the proximal one sits where its own bone allows (a wrist thrown off stretches the hand's
+    # bone too, and it is the wrist that is wrong)
+    bone_to = np.full(J, -1)
+    bone_to[b[:, 1]] = np.arange(len(b))
+    up = bone_to[b[:, 0]]  # (B,): the bone into each bone's proximal joint, -1 at a root
+    proximal_ok = np.where(up >= 0, error[:, np.maximum(up, 0)] <= proximal_fraction * target[np.maximum(up, 0)], True)
+    # tracked distal ends only: an inferred hand or foot is the sensor's guess, judged by the
+    # frozen-limb stage; released here for its length, a seated user's inferred feet under a
+    # desk (seated_joints.csv) were filled 5 % off their mirrors' lengths, from 2 %
+    tracked_end = conf[:, b[:, 1]] >= 1.0
+    bad = judged & tracked_end & (error > np.maximum(fraction * target, floor_m)) & np.isfinite(error) & proximal_ok
+    run = missing_run_lengths(~bad)  # the length of each run of bad samples
+    bad &= run >= max(1, int(round(min_run_s * rate_hz)))
+    if bad.any():
+        out = (bad.astype(np.float64) @ np.where(judged[:, None], ends, False).astype(np.float64)) > 0
+        out &= conf > 0
+    return out
