@@ -24,11 +24,12 @@ Arrays: positions ``(T, J, 3)`` metres, confidence ``(T, J)``, bones ``(B, 2)`` 
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .excursion import parents_from_bones
 from .interpolate import missing_run_lengths
-from .isometry import bone_lengths_per_frame
 
 __all__ = ["dislocated_ends", "end_segments", "FRACTION", "FLOOR_M", "MIN_RUN_S", "PROXIMAL_FRACTION", "MAX_SUBTREE"]
 
@@ -70,6 +71,13 @@ def end_segments(bones: np.ndarray, n_joints: int, max_subtree: int = MAX_SUBTRE
     return subtree & (subtree.sum(axis=1) <= max_subtree)[:, None]
 
 
+@functools.lru_cache(maxsize=32)
+def _end_segments_cached(bones_bytes: bytes, n_joints: int, max_subtree: int) -> np.ndarray:
+    seg = end_segments(np.frombuffer(bones_bytes, dtype=np.intp).reshape(-1, 2), n_joints, max_subtree)
+    seg.setflags(write=False)
+    return seg
+
+
 def dislocated_ends(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -95,38 +103,44 @@ def dislocated_ends(
     ``proximal_fraction`` of its length (that joint is where its bone allows).
     ``joints`` ``(J,)`` bool: only end segments whose distal joint is one of these (None = any;
     the bridge passes the limbs', so a neck and head are not judged by one short bone)."""
-    x = np.asarray(positions, dtype=np.float64)
     conf = np.asarray(confidence, dtype=np.float64)
     T, J = conf.shape
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     out = np.zeros((T, J), dtype=bool)
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     if T == 0 or not len(b) or bone_lengths is None:
         return out
-    ends = end_segments(b, J, max_subtree)
+    ends = _end_segments_cached(b.tobytes(), J, max_subtree)
     judged = ends.any(axis=1)
     if joints is not None:
         judged &= np.asarray(joints, dtype=bool)[b[:, 1]]
     if not judged.any():
         return out
-    lengths = bone_lengths_per_frame(x, b)  # (T, B), NaN where an end is missing
-    seen = (conf[:, b[:, 0]] > 0) & (conf[:, b[:, 1]] > 0) & np.isfinite(lengths)
     target = np.asarray(bone_lengths, dtype=np.float64)
-    error = np.abs(np.where(seen, lengths, np.inf) - target)  # inf: unseen; NaN: no length known
+    x = np.asarray(positions, dtype=np.float64)
+    k = np.flatnonzero(judged)
+    # tracked distal ends only: an inferred hand or foot is the sensor's guess, judged by the
+    # frozen-limb stage; released here for its length, a seated user's inferred feet under a
+    # desk (seated_joints.csv) were filled 5 % off their mirrors' lengths, from 2 %
+    seen = (conf[:, b[k, 0]] > 0) & (conf[:, b[k, 1]] >= 1.0)
+    error = np.abs(np.linalg.norm(x[:, b[k, 1]] - x[:, b[k, 0]], axis=2) - target[k])  # NaN: an end or the length unknown
+    bad = seen & (error > np.maximum(fraction * target[k], floor_m))
+    if not bad.any():
+        return out
     # a bone does not say which of its ends is wrong: the distal one is released only where
     # the proximal one sits where its own bone allows (a wrist thrown off stretches the hand's
     # bone too, and it is the wrist that is wrong)
     bone_to = np.full(J, -1)
     bone_to[b[:, 1]] = np.arange(len(b))
-    up = bone_to[b[:, 0]]  # (B,): the bone into each bone's proximal joint, -1 at a root
-    proximal_ok = np.where(up >= 0, error[:, np.maximum(up, 0)] <= proximal_fraction * target[np.maximum(up, 0)], True)
-    # tracked distal ends only: an inferred hand or foot is the sensor's guess, judged by the
-    # frozen-limb stage; released here for its length, a seated user's inferred feet under a
-    # desk (seated_joints.csv) were filled 5 % off their mirrors' lengths, from 2 %
-    tracked_end = conf[:, b[:, 1]] >= 1.0
-    bad = judged & tracked_end & (error > np.maximum(fraction * target, floor_m)) & np.isfinite(error) & proximal_ok
+    up = bone_to[b[k, 0]]  # the bone into each judged bone's proximal joint, -1 at a root
+    has_up = up >= 0
+    if has_up.any():
+        u = up[has_up]
+        up_seen = (conf[:, b[u, 0]] > 0) & (conf[:, b[u, 1]] > 0)
+        up_error = np.abs(np.linalg.norm(x[:, b[u, 1]] - x[:, b[u, 0]], axis=2) - target[u])
+        bad[:, has_up] &= up_seen & (up_error <= proximal_fraction * target[u])
     run = missing_run_lengths(~bad)  # the length of each run of bad samples
     bad &= run >= max(1, int(round(min_run_s * rate_hz)))
     if bad.any():
-        out = (bad.astype(np.float64) @ np.where(judged[:, None], ends, False).astype(np.float64)) > 0
+        out = (bad.astype(np.float64) @ ends[k].astype(np.float64)) > 0
         out &= conf > 0
     return out
