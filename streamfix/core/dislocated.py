@@ -73,6 +73,7 @@ def end_segments(bones: np.ndarray, n_joints: int, max_subtree: int = MAX_SUBTRE
 
 @functools.lru_cache(maxsize=32)
 def _end_segments_cached(bones_bytes: bytes, n_joints: int, max_subtree: int) -> np.ndarray:
+    """:func:`end_segments` of one skeleton, computed once (read-only)."""
     seg = end_segments(np.frombuffer(bones_bytes, dtype=np.intp).reshape(-1, 2), n_joints, max_subtree)
     seg.setflags(write=False)
     return seg
@@ -92,10 +93,9 @@ def dislocated_ends(
     joints: np.ndarray | None = None,
     proximal_fraction: float = PROXIMAL_FRACTION,
 ) -> np.ndarray:
-    """``(T, J)`` bool: observed samples of an end segment (:func:`end_segments`) whose *tracked*
-    distal joint's bone
-    to its parent is off its length by more than ``fraction`` of it and ``floor_m`` for at
-    least ``min_run_s`` seconds in a row. ``bone_lengths`` ``(B,)`` m: the body's lengths
+    """``(T, J)`` bool: the samples of an end segment (:func:`end_segments`) whose *tracked*
+    distal joint's bone to its parent is off its length by more than ``fraction`` of it and
+    ``floor_m`` for at least ``min_run_s`` seconds in a row. ``bone_lengths`` ``(B,)`` m: the body's lengths
     (NaN: that bone is not judged); None: nothing is judged. Never the window's own: at a
     stream's start a 16-frame window whose wrist the sensor threw off for half of it has a
     median hand bone between the two, and every one of its frames looked off.
