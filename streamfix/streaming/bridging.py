@@ -99,11 +99,14 @@ Dislocated hands and feet released (``release_dislocated``, on by default)
 -------------------------------------------------------------------------
 A hand, hand tip, thumb or foot whose bone to its parent is off the body's length by
 half or more (and 3 cm or more) for a third of a second, while the parent sits where its
-own bone allows, is a sensor failure however it is flagged (a hand laid on the wrist):
-those samples become missing, after foot support (whose planted legs have their lengths)
-and before the bridge and the window pipeline, which fill them
-(:mod:`streamfix.core.dislocated`). Nothing is judged before the engine has the body's
-lengths. ``tests/test_dislocated.py`` measures it on the KERAAL take.
+own bone allows, is a sensor failure however it is flagged (a hand laid on the wrist).
+After foot support (whose planted legs have their lengths), those samples are put back on
+their parent from the joint's offset to it around the run, at the body's bone length, and
+enter the window pipeline as low-confidence observations (``fill_confidence``), flagged
+``recovered`` (:mod:`streamfix.core.dislocated`). Made missing instead, they sent the window
+to the low-rank solver and the long-gap bridge: a third of the engine's time on the Kinect v2
+recordings, for a KERAAL score within 0.1 mm. Nothing is judged before the engine has the
+body's lengths. ``tests/test_dislocated.py`` measures it on the KERAAL take.
 
 Inferred limbs checked against the prior (``verify_inferred``, off by default)
 -----------------------------------------------------------------------------
@@ -568,12 +571,16 @@ class BridgingWindowSolver:
             # a hand or foot held far off its bone's length for a run of frames (collapsed
             # onto the wrist, thrown off): not a measurement, the gap fill replaces it
             # (core/dislocated.py); after foot support, whose planted legs have their lengths
-            from ..core.dislocated import dislocated_ends
+            from ..core.dislocated import dislocated_ends, parent_relative_fill
 
             dislocated = dislocated_ends(x, conf, bones, bone_lengths, rate_hz, joints=self._layout(skeleton)[0])
             if dislocated.any():
-                x = np.where(dislocated[..., None], np.nan, x)
-                conf = np.where(dislocated, 0.0, conf)
+                # put back on the parent from the offsets around the run, a low-confidence
+                # observation the window pipeline smooths with the rest (no solver run for it)
+                x = parent_relative_fill(x, dislocated, obs, bones, bone_lengths)
+                placed = dislocated & np.isfinite(x).all(axis=2)
+                conf = np.where(placed, self.fill_confidence, np.where(dislocated, 0.0, conf))
+                x = np.where((dislocated & ~placed)[..., None], np.nan, x)
                 obs = conf > 0
                 replaced = dislocated if replaced is None else (replaced | dislocated)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
