@@ -227,3 +227,12 @@ def test_joint_missing_for_the_whole_window_is_recovered_not_a_crash(shared_data
     others[hand] = False
     # every other joint stays where the sensor saw it (within the pipeline's smoothing)
     assert np.nanmax(np.abs(res.positions[:, others] - motion.positions[:60, others])) < 0.1
+
+
+def test_estimators_are_scored_on_the_newest_frames_plus_the_widest_kernel():
+    from streamfix.core.pipeline import _scored_frames
+
+    assert _scored_frames(60, None, 9) == slice(None)
+    assert _scored_frames(60, 30, 9) == slice(21, None)  # 30 + 9 newest of 60
+    assert _scored_frames(90, 115, 9) == slice(None)  # the file schedule: the whole window
+    assert _scored_frames(16, 30, 9) == slice(None)  # a stream's first, short windows

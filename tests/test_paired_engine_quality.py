@@ -71,3 +71,63 @@ def test_correlated_kinect_noise_is_smoothed(shared_data):
             deb[m].append(part[(m, "all")]["deb"])
     assert jit["streamfix"] < 0.45 * jit["median_savgol"], jit
     assert np.concatenate(deb["streamfix"]).mean() < np.concatenate(deb["median_savgol"]).mean()
+
+
+def test_serve_scores_its_windows_where_their_output_is_used(keraal):
+    """serve publishes each frame from windows where it lies 6-15 frames from the newest;
+    the estimator (the fit's half-width, or the median) is chosen by bone rigidity over those
+    frames (PipelineConfig.score_newest_frames, set by the engine). Scored over the whole 2 s
+    window, a wide fit that suited the already-published older part was used on KERAAL's
+    frames 154-161, where the hand moved fast: 80-130 mm from the Vicon where the sensor
+    was 30-60 mm off."""
+    from dataclasses import replace
+
+    from streamfix.core.pipeline import PipelineConfig, clean_window
+    from streamfix.streaming.bridging import BridgingWindowSolver
+    from streamfix.streaming.config import schedule_config
+    from streamfix.streaming.offline import clean_motion
+
+    def whole_window(positions, confidence, bones, bone_lengths, rate_hz, config=PipelineConfig(), state=None, init=None):
+        return clean_window(positions, confidence, bones, bone_lengths, rate_hz,
+                            replace(config, score_newest_frames=None), state, init)
+
+    m, ref = keraal.sensor, keraal.reference
+    hand = m.skeleton.joint_names.index("HandLeft")
+    cfg = schedule_config("serve", m.rate_hz)
+    errors = {}
+    for name, solver in (("newest", BridgingWindowSolver()), ("whole", BridgingWindowSolver(base=whole_window))):
+        out, _ = clean_motion(m, cfg, solver)
+        e = np.linalg.norm(remove_mean_offset(out.positions, ref) - ref, axis=2)
+        errors[name] = (float(np.nanmean(e[154:162, hand])), float(np.nanmean(e)))
+    assert errors["whole"][0] > 0.07  # the failure without the rule
+    assert errors["newest"][0] < 0.6 * errors["whole"][0], errors
+    assert errors["newest"][1] < errors["whole"][1] - 0.0003, errors  # the take: 0.5 mm better
+    # the file schedule's windows are used over their whole length: nothing changes there
+    assert schedule_config("file", m.rate_hz).lookahead + schedule_config("file", m.rate_hz).hop >= \
+        schedule_config("file", m.rate_hz).window
+
+
+def test_the_engine_tells_the_window_solver_which_frames_its_blend_uses(keraal):
+    """score_newest_frames = lookahead + hop + crossfade of the schedule (frames), given to a
+    solver whose config has the field; a config the user passes keeps its other settings."""
+    from streamfix.core.pipeline import PipelineConfig, clean_window
+    from streamfix.streaming.bridging import BridgingWindowSolver
+    from streamfix.streaming.config import schedule_config
+    from streamfix.streaming.offline import clean_motion
+
+    seen = []
+
+    def recording(positions, confidence, bones, bone_lengths, rate_hz, config=PipelineConfig(), state=None, init=None):
+        seen.append(config)
+        return clean_window(positions, confidence, bones, bone_lengths, rate_hz, config, state, init)
+
+    m = keraal.sensor
+    motion = type(m)(m.positions[:120], m.confidence[:120], m.timestamps[:120], m.rate_hz, m.skeleton)
+    for schedule, expected in (("serve", 15 + 10 + 5), ("file", 60 + 40 + 15)):
+        seen.clear()
+        clean_motion(motion, schedule_config(schedule, 30.0), BridgingWindowSolver(base=recording))
+        assert seen and {c.score_newest_frames for c in seen} == {expected}, schedule
+    seen.clear()
+    mine = PipelineConfig(outlier_threshold_m=0.02)
+    clean_motion(motion, schedule_config("serve", 30.0, solver_config=mine), BridgingWindowSolver(base=recording))
+    assert {(c.outlier_threshold_m, c.score_newest_frames) for c in seen} == {(0.02, 30)}

@@ -23,7 +23,12 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    :func:`_bone_spread`; for marker sets the most rigid marker pairs) wins. A skeleton's
    bones are rigid, so this needs no ground truth: a fit that follows the clean samples
    keeps them constant, one that chased corrupted samples does not. Ties go to the
-   shortest window (least bias). **Frame by frame** (``local_width_s``): the window's
+   shortest window (least bias). **Scored where the output is used**: ``serve`` publishes a
+   frame from windows where it lies 6-15 frames from the newest, so the engine has the score
+   taken over the newest frames its blend uses (``score_newest_frames``: lookahead + hop +
+   crossfade, plus the widest fit's half-width); over the whole 2 s window, a wide fit that
+   suited the already-published older frames was used where a hand moved fast (KERAAL,
+   ``tests/test_paired_engine_quality.py``). The file schedule's windows are used whole. **Frame by frame** (``local_width_s``): the window's
    speed and corruption change within it, so the fitted half-width is chosen per frame,
    by the same rigidity scored over the frames around it, and blended between
    neighbouring candidates (:mod:`streamfix.core.local_width`); that composite fit
@@ -138,6 +143,10 @@ class PipelineConfig:
     min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
     keep_rigid_motion: bool = True  # flagged samples whose bones stay rigid are kept (core.rigid_motion)
+    # the estimators' rigidity is scored on the window's newest this many frames plus the widest
+    # candidate half-width (None: the whole window); the streaming engine sets the frames its
+    # blend takes from a window, the hop before them and the crossfade (module doc, stage 1)
+    score_newest_frames: int | None = None
     inferred_weight: float = 0.5
     # stage 4: solver for missing joint-frames
     use_solver: bool = True
@@ -367,6 +376,16 @@ def _kernel_mass(h: int) -> float:
     sample observed and weighted 1)."""
     k = np.arange(-h, h + 1)
     return float(np.sum((1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3))
+
+
+def _scored_frames(n_frames: int, newest: int | None, widest_half_width: int) -> slice:
+    """The frames of a window its estimators are scored on: the newest ``newest`` plus the
+    widest fit's half-width (the older side of their kernels), or all (``newest`` None, or
+    that many frames or more)."""
+    if newest is None:
+        return slice(None)
+    n = int(newest) + int(widest_half_width)
+    return slice(n_frames - n, None) if n < n_frames else slice(None)
 
 
 def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float) -> float:
@@ -664,6 +683,11 @@ def clean_window(
     obs3 = np.repeat(obs[..., None], 3, axis=2)
     rigid = bones if len(bones) else _rigid_pairs(x, obs, rate_hz)  # markers: pairs found in the data
     widths = sorted({max(cfg.h_min_frames, int(round(w * rate_hz))) for w in cfg.candidate_windows_s})
+    scored = _scored_frames(n_frames, cfg.score_newest_frames, widths[-1])
+
+    def spread(est: np.ndarray) -> float:
+        return _bone_spread(est[scored], obs[scored], rigid, cfg.min_bone_m)
+
     best = None
     spreads = {}
     local = cfg.local_width_s is not None and len(widths) > 1 and len(rigid) > 0
@@ -673,12 +697,14 @@ def clean_window(
         est_h = _estimate(x, obs3, fit_h, resid_h, cfg)
         if local:
             spreads[h], (s_h, n_h) = _bone_spread_and_frames(est_h, obs, rigid, cfg.min_bone_m)
+            if scored != slice(None):
+                spreads[h] = spread(est_h)
             fits.append(fit_h)
             supports.append(sup_h)
             dev_sums.append(s_h)
             dev_counts.append(n_h)
         else:
-            spreads[h] = _bone_spread(est_h, obs, rigid, cfg.min_bone_m)
+            spreads[h] = spread(est_h)
         if best is None or spreads[h] < spreads[best[0]]:
             best = (h, fit_h, resid_h, sup_h)
     h, fit, resid, sup = best
@@ -690,7 +716,7 @@ def clean_window(
                                   int(round(cfg.local_width_s * rate_hz)), int(round(cfg.local_width_smooth_s * rate_hz)))
         local_fit = take_fractional(np.array(fits), index)
         local_resid = np.where(obs3, x - local_fit, np.nan)
-        spreads["local"] = _bone_spread(_estimate(x, obs3, local_fit, local_resid, cfg), obs, rigid, cfg.min_bone_m)
+        spreads["local"] = spread(_estimate(x, obs3, local_fit, local_resid, cfg))
         # kept only if the window as a whole is as rigid: a short failure on one bone (a
         # limb thrown for a few frames) is diluted in a frame's mean over bones, and the
         # shortest fit, which follows it, would otherwise win there. "As rigid" up to
@@ -709,11 +735,11 @@ def clean_window(
         fit_key = chosen
         med = median_savgol(x, rate_hz, obs)
         med_resid = np.where(obs3, x - med, np.nan)
-        spreads["median_savgol"] = _bone_spread(med, obs, rigid, cfg.min_bone_m)
+        spreads["median_savgol"] = spread(med)
         a = np.clip(sup / (full * cfg.blend_support), 0.0, 1.0)
         blend = np.where(np.isfinite(med), a * fit + (1.0 - a) * np.nan_to_num(med), fit)
         blend_resid = np.where(obs3, x - blend, np.nan)
-        spreads["blend"] = _bone_spread(_estimate(x, obs3, blend, blend_resid, cfg), obs, rigid, cfg.min_bone_m)
+        spreads["blend"] = spread(_estimate(x, obs3, blend, blend_resid, cfg))
         if spreads["median_savgol"] < cfg.fallback_margin * min(spreads[fit_key], spreads["blend"]):
             chosen, fit, resid = "median_savgol", med, med_resid
         elif spreads["blend"] < spreads[fit_key]:

@@ -146,7 +146,7 @@ from ..core.filters import twiced_binomial_taps
 from ..frames import BodyFrame, SkeletonFrame, check_frame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
-from .blending import HANDOVER_S, handover_weights, next_window_end
+from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end
 from .bone_lengths import LengthSources, length_sources, sample_clean_bones
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,  # noqa: F401
@@ -172,7 +172,7 @@ from .live import LivePath
 from .overlap_add import blend_window
 from .solver_api import WindowOutput, WindowSolver
 from .window_job import solve_job
-from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations
+from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations, with_score_frames
 
 __all__ = [
     "EngineConfig",
@@ -210,6 +210,11 @@ class StreamEngine:
         self.solver = window_solver if window_solver is not None else default_window_solver()
         self._history = wants(self.solver, "wants_history")
         self._pass_skeleton = wants(self.solver, "wants_skeleton")
+        # the frames of a window the blend uses (its newest L + 1), the hop before them and the
+        # crossfade: where the window solver scores its estimators (PipelineConfig.score_newest_frames)
+        self._solver_config = with_score_frames(
+            self.cfg.solver_config, self.cfg.lookahead + self.cfg.hop + crossfade_frames(self.cfg.handover_s, self.cfg.rate_hz),
+            self.solver)
         self._mirror_bones = mirror_bones(skeleton)
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
@@ -577,7 +582,7 @@ class StreamEngine:
 
     def _run_job(self, job: Job) -> None:
         """Solve one window (worker thread in threaded mode); sets the job's result."""
-        config = with_max_iterations(self.cfg.solver_config, job.iterations, self.solver)
+        config = with_max_iterations(self._solver_config, job.iterations, self.solver)
         bridged = solve_job(job, self.solver, self.bones, self.cfg.rate_hz, self.cfg.window, config,
                             pass_history=self._history, skeleton=self.skeleton if self._pass_skeleton else None)
         if bridged:

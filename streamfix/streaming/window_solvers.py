@@ -10,7 +10,7 @@ import numpy as np
 
 from .solver_api import WindowOutput, WindowSolver, WindowSolverError
 
-__all__ = ["alm_window_solver", "default_window_solver", "wants", "with_max_iterations"]
+__all__ = ["alm_window_solver", "default_window_solver", "wants", "with_max_iterations", "with_score_frames"]
 
 
 def alm_window_solver(
@@ -68,6 +68,30 @@ def wants(solver: WindowSolver, flag: str) -> bool:
     return inner is not None and inner is not solver and bool(getattr(inner, flag, False))
 
 
+def _default_config(solver: WindowSolver) -> Any:
+    """The ``config`` a window solver (or the base of a wrapping one) uses when given None, or None."""
+    solver = getattr(solver, "base_solver", solver)
+    try:
+        import inspect
+
+        default = inspect.signature(solver).parameters["config"].default
+    except (KeyError, TypeError, ValueError):
+        return None
+    return None if default is inspect.Parameter.empty else default
+
+
+def with_score_frames(config: Any, n: int | None, solver: WindowSolver) -> Any:
+    """A copy of a solver config with ``score_newest_frames`` set to ``n`` where the config
+    (given, or the solver's default) has that field (``streamfix.core.pipeline.PipelineConfig``);
+    otherwise ``config`` unchanged."""
+    base = config if config is not None else _default_config(solver)
+    if n is None or not dataclasses.is_dataclass(base):
+        return config
+    if "score_newest_frames" not in {f.name for f in dataclasses.fields(base)}:
+        return config
+    return dataclasses.replace(base, score_newest_frames=int(n))
+
+
 def with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any:
     """A copy of a solver config with its iteration cap set to ``n`` (if it has one)."""
     if n is None:
@@ -78,15 +102,9 @@ def with_max_iterations(config: Any, n: int | None, solver: WindowSolver) -> Any
             from ..core.alm import SolverParams
 
             return SolverParams(max_iter=n)
-        try:
-            import inspect
-
-            default = inspect.signature(solver).parameters["config"].default
-        except (KeyError, TypeError, ValueError):
+        config = _default_config(solver)
+        if config is None:
             return None
-        if default is inspect.Parameter.empty or default is None:
-            return None
-        config = default
     if not dataclasses.is_dataclass(config):
         return config
     names = {f.name for f in dataclasses.fields(config)}
