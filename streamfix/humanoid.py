@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .core.bone_rotations import parent_array, topological_order
+from .core.bone_rotations import parent_array, subtree_mask, topological_order
 from .limbs import limb_layout
 from .skeletons import Skeleton
 
@@ -79,16 +79,6 @@ def median_bone_lengths(positions: np.ndarray, skeleton: Skeleton) -> np.ndarray
     return np.nanmedian(lengths, axis=0)
 
 
-def _subtree(parents: np.ndarray, root: int) -> np.ndarray:
-    """Bool mask of ``root`` and its descendants."""
-    inside = np.zeros(len(parents), bool)
-    inside[root] = True
-    for j in topological_order(parents):
-        if parents[j] >= 0 and inside[parents[j]]:
-            inside[j] = True
-    return inside
-
-
 def t_pose_directions(skeleton: Skeleton) -> np.ndarray | None:
     """``(J, 3)`` unit rest direction of the bone ending at each joint (root: zeros), or None.
 
@@ -102,13 +92,13 @@ def t_pose_directions(skeleton: Skeleton) -> np.ndarray | None:
     dirs = np.tile(UP, (skeleton.n_joints, 1))
     for side, sign in ((0, 1.0), (1, -1.0)):
         hip, knee, ankle, foot = layout.legs[side]
-        leg = _subtree(parents, hip)
+        leg = subtree_mask(parents, hip)
         dirs[leg] = DOWN
         dirs[hip] = sign * LEFT
         if foot != ankle:
-            dirs[_subtree(parents, foot)] = FORWARD
+            dirs[subtree_mask(parents, foot)] = FORWARD
         shoulder = layout.shoulders[side]
-        arm = _subtree(parents, shoulder)
+        arm = subtree_mask(parents, shoulder)
         k = parents[shoulder]
         while k >= 0 and sided[k]:  # clavicles above the shoulder
             arm[k] = True

@@ -47,6 +47,7 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "parent_array",
     "topological_order",
+    "subtree_mask",
     "aim_targets",
     "solve_local_rotations",
     "solve_rotation_matrices",
@@ -90,6 +91,17 @@ def topological_order(parents: np.ndarray) -> np.ndarray:
                 raise ValueError(f"the parent links from node {j} form a cycle")
         depth[j] = steps
     return np.argsort(depth, kind="stable")
+
+
+def subtree_mask(parents: np.ndarray, root: int) -> np.ndarray:
+    """``(J,)`` bool: ``root`` and the nodes hanging below it."""
+    parents = np.asarray(parents, dtype=np.intp)
+    inside = np.zeros(len(parents), bool)
+    inside[root] = True
+    for j in topological_order(parents):
+        if parents[j] >= 0 and inside[parents[j]]:
+            inside[j] = True
+    return inside
 
 
 def aim_targets(parents: np.ndarray, offsets: np.ndarray) -> list[list[tuple[int, np.ndarray]]]:

@@ -29,6 +29,7 @@ import functools
 
 import numpy as np
 
+from .bone_rotations import subtree_mask, topological_order
 from .excursion import parents_from_bones
 from .interpolate import interpolate_linear, missing_run_lengths
 
@@ -61,15 +62,15 @@ def end_segments(bones: np.ndarray, n_joints: int, max_subtree: int = MAX_SUBTRE
     joints (itself included), those joints; all False for the other bones."""
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     parents = parents_from_bones(b, n_joints)
-    # below[i, j]: j is i or hangs below i (transitive closure of the parent relation)
-    below = np.eye(n_joints, dtype=bool)
-    for _ in range(n_joints):
-        grown = below | below[:, np.maximum(parents, 0)] & (parents >= 0)[None, :]
-        if (grown == below).all():
-            break
-        below = grown
-    subtree = below[b[:, 1]]  # (B, J): the child end and what hangs below it
+    subtree = np.array([subtree_mask(parents, c) for c in b[:, 1]], dtype=bool).reshape(len(b), n_joints)
     return subtree & (subtree.sum(axis=1) <= max_subtree)[:, None]
+
+
+def _bone_into(bones: np.ndarray, n_joints: int) -> np.ndarray:
+    """``(J,)`` int: the index of the bone ending at each joint, -1 at a root."""
+    into = np.full(n_joints, -1)
+    into[bones[:, 1]] = np.arange(len(bones))
+    return into
 
 
 @functools.lru_cache(maxsize=32)
@@ -130,9 +131,7 @@ def dislocated_ends(
     # a bone does not say which of its ends is wrong: the distal one is released only where
     # the proximal one sits where its own bone allows (a wrist thrown off stretches the hand's
     # bone too, and it is the wrist that is wrong)
-    bone_to = np.full(J, -1)
-    bone_to[b[:, 1]] = np.arange(len(b))
-    up = bone_to[b[k, 0]]  # the bone into each judged bone's proximal joint, -1 at a root
+    up = _bone_into(b, J)[b[k, 0]]  # the bone into each judged bone's proximal joint, -1 at a root
     has_up = up >= 0
     if has_up.any():
         u = up[has_up]
@@ -148,11 +147,12 @@ def dislocated_ends(
 
 
 def parent_relative_fill(positions: np.ndarray, released: np.ndarray, observed: np.ndarray, bones: np.ndarray,
-                         bone_lengths: np.ndarray | None = None) -> np.ndarray:
+                         bone_lengths: np.ndarray) -> np.ndarray:
     """``(T, J, 3)`` m: each released sample of ``positions`` put back on its parent from
     the joint's offset to the parent in the good samples around the run, interpolated
-    linearly in time (held where the run has one end); NaN where the joint has no good
-    sample. A hand tip below a released hand follows the hand's fill (parents first).
+    linearly in time (held where the run has one end) and scaled to the bone's length in
+    ``bone_lengths`` ``(B,)`` m (NaN: the interpolated offset as it is); NaN where the joint
+    has no good sample. A hand tip below a released hand follows the hand's fill (parents first).
 
     Why not the window solver: a released hand or foot hangs from a parent the sensor has
     right (its bone into the parent is checked), and its own motion over a third of a second
@@ -166,30 +166,17 @@ def parent_relative_fill(positions: np.ndarray, released: np.ndarray, observed: 
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     J = x.shape[1]
     parents = parents_from_bones(b, J)
+    length = np.asarray(bone_lengths, dtype=np.float64)[_bone_into(b, J)]
     good = np.asarray(observed, dtype=bool) & ~rel
-    cols = np.flatnonzero(rel.any(axis=0) & (parents >= 0))
-    todo = set(cols.tolist())
-    while todo:  # parents first: a released hand tip hangs from a released hand
-        level = [j for j in todo if parents[j] not in todo]
-        if not level:
-            break
-        lv = np.array(level)
-        par = parents[lv]
-        offset = np.where(good[:, lv, None] & good[:, par, None], x[:, lv] - x[:, par], np.nan)
-        have = np.isfinite(offset).all(axis=2)
-        length = np.linalg.norm(offset, axis=2)
-        est, _ = interpolate_linear(offset, have)
-        est_len, _ = interpolate_linear(np.repeat(length[..., None], 3, axis=2), have)
-        norm = np.linalg.norm(est, axis=2, keepdims=True)
-        if bone_lengths is not None:
-            bone_to = np.full(J, -1)
-            bone_to[b[:, 1]] = np.arange(len(b))
-            target = np.asarray(bone_lengths, dtype=np.float64)[bone_to[lv]]
-            est_len = np.where(np.isfinite(target)[None, :, None], target[None, :, None], est_len)
-        est = est * (est_len[..., :1] / np.where(norm > 0, norm, 1.0))  # the offset's length, not its chord's
-        fill = x[:, par] + est
-        r = rel[:, lv]
-        x[:, lv] = np.where(r[..., None], fill, x[:, lv])
-        todo -= set(level)
+    order = topological_order(parents)
+    todo = rel.any(axis=0) & (parents >= 0)
+    for j in order[todo[order]]:  # parents first: a released hand tip after its hand
+        p = parents[j]
+        offset = np.where((good[:, j] & good[:, p])[:, None], x[:, j] - x[:, p], np.nan)[:, None]
+        est = interpolate_linear(offset, np.isfinite(offset).all(axis=2))[0][:, 0]
+        if np.isfinite(length[j]):
+            norm = np.linalg.norm(est, axis=1, keepdims=True)
+            est = est * (length[j] / np.where(norm > 0, norm, 1.0))  # the bone's length, not the chord's
+        x[rel[:, j], j] = x[rel[:, j], p] + est[rel[:, j]]
     x[rel & ~np.isfinite(x).all(axis=2)] = np.nan
     return x

@@ -28,9 +28,10 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    taken over the newest frames its blend uses (``score_newest_frames``: lookahead + hop +
    crossfade, plus the widest fit's half-width); over the whole 2 s window, a wide fit that
    suited the already-published older frames was used where a hand moved fast (KERAAL,
-   ``tests/test_paired_engine_quality.py``). The file schedule's windows are used whole. **Frame by frame** (``local_width_s``): the window's
-   speed and corruption change within it, so the fitted half-width is chosen per frame,
-   by the same rigidity scored over the frames around it, and blended between
+   ``tests/test_paired_engine_quality.py``). The file schedule's windows are used whole.
+   **Frame by frame** (``local_width_s``): the window's speed and corruption change within
+   it, so the fitted half-width is chosen per frame, by the same rigidity scored over the
+   frames around it, and blended between
    neighbouring candidates (:mod:`streamfix.core.local_width`); that composite fit
    (``"local"``) takes the window-wide fit's place when its bones are at least as rigid
    over the whole window, and then competes with the median candidates as that fit did.
