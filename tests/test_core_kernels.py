@@ -111,6 +111,27 @@ def test_robust_fit_kernel_matches_numpy_reference(kinect, monkeypatch, h):
     assert np.allclose(support, ref_support, rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("h", [2, 4])
+def test_robust_fit_keeps_the_wider_scale_where_a_sharper_one_leaves_no_inlier(monkeypatch, compiled, h):
+    """A joint whose depth flickers by +-3 cm every frame has no sample within the 2 cm and
+    1 cm scales of the fit: those passes have nothing to fit there. The fit stays at the
+    wider scale's estimate instead of the ridge's 0 (the camera's origin, 2.8 m away), which
+    the window cleaner took as the joint's position and the bone projection dragged the
+    whole arm towards (a serve freeze take: one frame of the arm 0.3 m off)."""
+    if not compiled:
+        _use_numpy_references(monkeypatch)
+    T = 60
+    x = np.zeros((T, 2, 3))
+    x[:, 0] = [0.3, 1.2, 2.8]
+    x[:, 1] = [0.3, 1.0, 2.8]
+    x[:, 0, 2] += 0.03 * (-1.0) ** np.arange(T)
+    fit, resid, support = (kernels if compiled else pipeline).robust_temporal_fit(x, np.ones((T, 2)), h)
+    assert (support[:, 0, 2] == 0).any()  # the case this is about occurs
+    assert np.abs(fit[:, 0, 2] - 2.8).max() < 0.05
+    assert np.abs(fit[:, 1] - x[:, 1]).max() < 1e-9  # a steady joint is its samples
+
+
 def test_clean_window_same_with_kernels_and_references(kinect, monkeypatch):
     """The window cleaner's output does not depend on which implementation runs."""
     x, conf, bones = kinect

@@ -561,7 +561,11 @@ def _robust_fit_loop(y, weights, h, scales, taps, fit, resid, support):  # pragm
     for c in scales:  # graduated non-convexity: wide basin first, then sharpen
         _tukey_weights_compiled(y0, cur, obs, prior, c, w)
         _local_poly_compiled(y0, w, taps, fit, support, _PIVOT_RTOL)
-        cur[:, :] = fit
+        for t in range(n_frames):
+            for k in range(n_ch):
+                if support[t, k] > 0:  # no inlier left at this scale: the wider one's estimate stands
+                    cur[t, k] = fit[t, k]
+    fit[:, :] = cur
     for t in range(n_frames):
         for k in range(n_ch):
             resid[t, k] = y0[t, k] - fit[t, k] if obs[t, k] else np.nan

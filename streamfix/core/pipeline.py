@@ -307,7 +307,8 @@ def robust_temporal_fit(
 
     Returns ``(fit, residual, support)`` each ``(T, J, 3)``; ``fit`` is the robust local
     quadratic at each frame, ``residual = positions - fit`` (NaN where missing),
-    ``support`` the kernel-weighted count of inliers behind each fit.
+    ``support`` the kernel-weighted count of inliers behind each fit at the sharpest
+    scale (0 where it left none: the fit there is the last scale's that had inliers).
     """
     x = np.asarray(positions, dtype=np.float64)
     n_frames, n_joints, _ = x.shape
@@ -325,7 +326,10 @@ def robust_temporal_fit(
     for c in scales_m:  # graduated non-convexity: wide basin first, then sharpen
         r = y0 - fit
         w = np.where(obs & (np.abs(r) < c), (1.0 - (r / c) ** 2) ** 2, 0.0) * prior
-        fit, support = fit_local_quadratic(y0, w, h)
+        new_fit, support = fit_local_quadratic(y0, w, h)
+        # a sharper scale that leaves a frame no inlier at all has nothing to fit there (the
+        # ridge alone gives 0, the camera's origin): the wider scale's estimate stands
+        fit = np.where(support > 0, new_fit, fit)
     resid = np.where(obs, y0 - fit, np.nan)
     shape = (n_frames, n_joints, 3)
     return fit.reshape(shape), resid.reshape(shape), support.reshape(shape)
