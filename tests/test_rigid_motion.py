@@ -95,6 +95,22 @@ def test_whole_body_group_and_unrigid_skeletons_are_not_judged(fast_take):
                             bones, 0.02).any()
 
 
+def test_fast_arm_is_kept_next_to_a_frozen_leg(fast_take):
+    """A limb's worth of varying bones (the left leg frozen at its first pose, on a skeleton
+    whose retargeted hand bones already vary by millimetres) does not make the exact skeleton
+    a depth sensor's: the fast left arm is still judged, and kept."""
+    m = fast_take
+    x = m.positions.copy()
+    leg = [m.skeleton.index(n) for n in ("KneeLeft", "AnkleLeft", "FootLeft")]
+    x[:, leg] = x[0, leg]
+    arm = [m.skeleton.index(n) for n in ARM_L]
+    flagged = np.zeros(x.shape[:2], dtype=bool)
+    flagged[10, arm] = True
+    smooth = x.copy()
+    smooth[10, arm] = 0.5 * (x[9, arm] + x[11, arm])
+    assert rigid_motion(x, smooth, flagged, np.ones_like(flagged), m.skeleton.bone_array, 0.02)[10, arm].all()
+
+
 def test_depth_sensor_windows_keep_the_fits_verdict(shared_data):
     m = read_kinect_csv(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
     kept = 0
