@@ -15,7 +15,9 @@ replacing it by the smooth fit is what breaks them.
 with that of the replacement, over every bone touching the group. The group is motion
 when the raw samples are rigid (within ``RIGID_TOLERANCE_M`` per bone) and clearly more
 rigid than the replacement (``RIGID_MOTION_RATIO``), and the group hangs on the rest of
-the body by a bone. The test only speaks where the skeleton is rigid in the first place
+the body by a bone. A flagged joint all of whose judged bones are broken is the outlier
+itself (a spike on the thumb of a fast hand): it stays flagged, and the rest of its group is
+judged without it. The test only speaks where the skeleton is rigid in the first place
 (animation, solved optical mocap): a depth sensor's bones vary by millimetres to
 centimetres, rigidity at a 2 mm tolerance shows nothing there, and such windows (and
 marker sets whose most rigid pairs still vary by a few millimetres) keep the fit's verdict.
@@ -110,11 +112,20 @@ def rigid_motion(
     deviation = np.abs(raw_len - ref)
     rows = np.flatnonzero(flagged.any(axis=1))  # only frames with a flagged joint are judged
     f, use = flagged[rows], both[rows] & usable[None, :]
+    n_joints = flagged.shape[1]
+    incidence = np.abs(incidence_matrix(p, n_joints))  # (B, J): 1 at both ends of each bone
+    # a flagged joint every judged bone of which is broken is the outlier itself (a spike on a
+    # thumb of a fast hand): it stays flagged, and its bones neither judge nor anchor the rest
+    # of its group, which is judged without it
+    judged = (use & (f[:, a] | f[:, b])).astype(np.float64) @ incidence
+    broken = (use & (deviation[rows] > tolerance_m)).astype(np.float64) @ incidence
+    culprit = f & (judged > 0) & (broken >= judged)
+    if culprit.any():
+        f = f & ~culprit
+        use = use & ~culprit[:, a] & ~culprit[:, b]
     fa, fb = f[:, a], f[:, b]
     touch = use & (fa | fb)
     rep_len = bone_lengths_per_frame(replaced[rows], p)
-    n_joints = flagged.shape[1]
-    incidence = np.abs(incidence_matrix(p, n_joints))  # (B, J): 1 at both ends of each bone
     # per flagged joint: bone-length error (raw, replaced), bones judged, bones to unflagged joints
     per_joint = np.stack([
         np.where(touch, deviation[rows], 0.0) @ incidence,
