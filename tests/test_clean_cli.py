@@ -98,6 +98,22 @@ def _failing_solver(every: int):
     return solve
 
 
+def test_clean_reads_a_nan_joint_as_missing_and_says_so(shared_data, tmp_path, capsys):
+    """A tracked joint with a NaN coordinate is missing for that frame: the file is cleaned
+    (every frame out, the joint recovered there) and the warning says how many there were."""
+    lines = (shared_data / "kinect_v2" / "Ges01_wavehand.csv").read_text().splitlines()
+    parts = lines[40].split(",")
+    parts[1 + 4 * 9: 1 + 4 * 9 + 3] = ["nan", "nan", "nan"]  # WristRight, trackingState left at 2
+    lines[40] = ",".join(parts)
+    src = tmp_path / "nan_wrist.csv"
+    src.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out.csv"
+    assert main(["clean", str(src), str(out), "--quiet"]) == 0
+    assert "1 joint-sample(s) flagged seen but with a NaN/inf coordinate, read as missing" in capsys.readouterr().err
+    cleaned = read_motion(out)
+    assert cleaned.n_frames == len(lines) and np.isfinite(cleaned.positions[40, 9]).all()
+
+
 def test_clean_fails_loudly_when_no_window_solves(shared_data, tmp_path, capsys, monkeypatch):
     """A broken solver must not pass the live path's output off as a cleaning."""
     import streamfix.streaming.engine as engine

@@ -122,6 +122,30 @@ def test_empty_file(tmp_path):
         read_kinect_csv(_write(tmp_path, [""], "empty.csv"))
 
 
+def test_text_without_frame_lines_says_so(tmp_path):
+    with pytest.raises(MotionFileError, match=r"words.csv: no frames: 1 line\(s\) of text but no frame line"):
+        read_kinect_csv(_write(tmp_path, ["hello world"], "words.csv"))
+
+
+def test_nan_coordinate_of_a_tracked_joint_is_missing_not_a_bad_file(shared_data, tmp_path):
+    """A NaN/inf coordinate makes that joint missing whatever its trackingState says; the
+    frame's other joints and the other frames are read as they are, and the count is kept."""
+    lines = [_good_line(shared_data, k) for k in range(6)]
+    parts = lines[2].split(",")
+    assert parts[1 + 4 * 9 + 3] == "2"  # WristRight tracked
+    parts[1 + 4 * 9 + 1] = "nan"
+    parts[1 + 4 * 9 + 2] = "inf"
+    lines[2] = ",".join(parts)
+    m = read_kinect_csv(_write(tmp_path, lines))
+    good = read_kinect_csv(_write(tmp_path, [_good_line(shared_data, k) for k in range(6)], "good.csv"))
+    assert m.n_frames == 6 and m.meta["nonfinite_joints"] == 1
+    assert m.confidence[2, 9] == 0 and np.isnan(m.positions[2, 9]).all()
+    keep = np.ones(m.positions.shape[:2], dtype=bool)
+    keep[2, 9] = False
+    np.testing.assert_array_equal(m.positions[keep], good.positions[keep])
+    assert "nonfinite_joints" not in good.meta
+
+
 def test_state_zero_is_missing_whatever_the_coordinates(shared_data):
     line = _good_line(shared_data)
     parts = line.split(",")

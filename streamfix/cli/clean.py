@@ -147,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"streamfix clean: cannot write {args.output}: {exc}", file=sys.stderr)
         return 2
     n_frames_in = motion.n_frames
+    if motion.meta.get("nonfinite_joints"):  # said even with --quiet: the file is not what its states claim
+        print(f"streamfix clean: warning: {args.input}: {motion.meta['nonfinite_joints']} joint-sample(s) flagged "
+              f"seen but with a NaN/inf coordinate, read as missing", file=sys.stderr)
     try:
         lengths = solver_config = None
         if args.skeleton_lengths is not None:

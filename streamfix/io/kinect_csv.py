@@ -65,11 +65,13 @@ def parse_kinect_csv_line(line: str, *, path: str | Path = "<stdin>", lineno: in
 
     For streaming sources (``serve --source stdin``). Raises :class:`MotionFileError`.
     """
-    ticks, pos, conf = _parse_rows(path, [(lineno, _fields(line))])
+    ticks, pos, conf, _ = _parse_rows(path, [(lineno, _fields(line))])
     return int(ticks[0]), pos[0], conf[0]
 
 
-def _parse_rows(path: str | Path, rows: list[tuple[int, list[str]]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _parse_rows(path: str | Path, rows: list[tuple[int, list[str]]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """``(ticks, positions, confidence, joint-samples whose state said seen but whose coordinate
+    was NaN/inf, read as missing)``; raises :class:`MotionFileError` naming a malformed line."""
     for lineno, parts in rows:
         if len(parts) != N_FIELDS:
             raise MotionFileError(
@@ -109,16 +111,12 @@ def _parse_rows(path: str | Path, rows: list[tuple[int, list[str]]]) -> tuple[np
         )
     conf = _STATE_TO_CONF[state.astype(np.intp)]
     pos = values[:, :, :3].copy()
+    # a joint with a NaN/inf coordinate is missing whatever its trackingState says: the
+    # frame's other joints are good data
     nonfinite = ~np.isfinite(pos).all(axis=2) & (conf > 0)
-    if nonfinite.any():
-        i, j = np.argwhere(nonfinite)[0]
-        raise MotionFileError(
-            path,
-            f"joint {j} ({KINECT_V2.joint_names[j]}) has a non-finite coordinate but trackingState {int(state[i, j])}",
-            line=rows[i][0],
-        )
+    conf[nonfinite] = 0.0
     pos[conf <= 0] = np.nan
-    return ticks, pos, conf
+    return ticks, pos, conf, int(nonfinite.sum())
 
 
 def read_kinect_csv(path: str | Path) -> Motion:
@@ -129,16 +127,21 @@ def read_kinect_csv(path: str | Path) -> Motion:
     except UnicodeDecodeError as exc:
         raise MotionFileError(path, f"not a text file ({exc.reason} at byte {exc.start})") from None
     rows = []
+    headers = 0
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         if not rows and s[0].isalpha():
+            headers += 1
             continue  # a column-name header line (e.g. "Timestamp,SpineBase_X,...")
         rows.append((lineno, _fields(s)))
     if not rows:
+        if headers:
+            raise MotionFileError(path, f"no frames: {headers} line(s) of text but no frame line "
+                                        f"(timestamp + {N_JOINTS} x (x, y, z, trackingState))")
         raise MotionFileError(path, "no frames (empty file)")
-    ticks, pos, conf = _parse_rows(path, rows)
+    ticks, pos, conf, nonfinite = _parse_rows(path, rows)
     dticks = np.diff(ticks)
     if (dticks <= 0).any():
         i = int(np.argmax(dticks <= 0))
@@ -153,6 +156,8 @@ def read_kinect_csv(path: str | Path) -> Motion:
         rate = KINECT_NOMINAL_HZ
     timestamps = ticks.astype(np.float64) / TICKS_PER_SECOND
     meta = {"source": str(path), "format": "kinect_v2_csv"}
+    if nonfinite:
+        meta["nonfinite_joints"] = nonfinite  # tracked or inferred, but a NaN/inf coordinate: read as missing
     return Motion(pos, conf, timestamps, rate, KINECT_V2, meta=meta)
 
 
