@@ -83,6 +83,40 @@ def test_training_is_deterministic_for_a_seed(shared_data):
         assert np.isfinite(h1["held_out_loss"]).all()
 
 
+def test_a_checkpoint_trained_elsewhere_exports_with_the_same_card(shared_data, tmp_path):
+    """A model trained on another machine (``save_checkpoint`` there, e.g. a GPU box) is exported and carded here
+    from the same weights and config: ``load_checkpoint`` returns them, and ``export_with_card`` records the
+    training device and torch version of the run, not of this machine."""
+    import json
+    import warnings
+
+    import torch
+
+    from streamfix.io.prior_takes import canonical_take
+    from streamfix.prior.data import load_take
+    from streamfix.prior.runtime import sha256_file
+    from streamfix.prior.train import TrainConfig, export_with_card, load_checkpoint, save_checkpoint, train
+
+    takes = [canonical_take(load_take(shared_data / "kinect_v2" / "Ges01_wavehand.csv"), "kinect_v2")]
+    cfg = TrainConfig(epochs=1, steps_per_epoch=2, batch=4, channels=8, latent=4)
+    model, history = train(takes, takes, cfg, log=lambda s: None)
+    history["device"] = "cuda:0"  # as a GPU run records it
+    save_checkpoint(model, history, cfg, tmp_path / "run.pt")
+    loaded, hist2, cfg2 = load_checkpoint(tmp_path / "run.pt")
+    assert cfg2.as_dict() == cfg.as_dict() and hist2["train_loss"] == history["train_loss"]
+    for (k, a), b in zip(model.state_dict().items(), loaded.state_dict().values()):
+        assert torch.equal(a, b), k
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        card = export_with_card(loaded, hist2, takes, [], tmp_path / "out", cfg2, log=lambda s: None, evaluate=False)
+    on_disk = json.loads((tmp_path / "out" / "canonical.json").read_text())
+    assert on_disk["training"]["device"] == "cuda:0" and on_disk["training"]["torch"] == history["torch"]
+    assert on_disk["latent"] == 4 and on_disk["channels"] == 8 and card["files"] == on_disk["files"]
+    for entry in on_disk["files"].values():
+        assert sha256_file(tmp_path / "out" / entry["file"]) == entry["sha256"]
+    assert (tmp_path / "out" / "canonical.md").read_text().count("cuda") == 1
+
+
 def test_source_shares_decide_where_batches_come_from():
     """``TrainConfig.shares`` / ``--share``: a source's share of the draws follows its weight, any number of takes."""
     import numpy as np

@@ -46,7 +46,8 @@ from .model import JACOBIAN_FRAME_STEP, DecoderJacobian, DecoderMatmul, Temporal
 from .normalize import apply_norm, normalise
 from .runtime import sha256_file
 
-__all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and_export"]
+__all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and_export", "export_with_card",
+           "save_checkpoint", "load_checkpoint"]
 
 
 class TrainConfig:
@@ -228,6 +229,8 @@ def train(
         batches.close()
     model.to("cpu")
     history["seconds"] = round(time.perf_counter() - t_start, 1)
+    history["torch"] = torch.__version__
+    history["device"] = str(device)
     history["reference_bone_lengths_m"] = ref.tolist()
     history["facing_template"] = np.round(template, 5).tolist()
     return model, history
@@ -409,6 +412,20 @@ def add_gram_output(path: str | Path, latent: int, n_coords: int, frames: int, f
     return [i.name for i in g.input if i.name not in init_names], [o.name for o in g.output]
 
 
+def save_checkpoint(model: TemporalAutoencoder, history: dict, config: TrainConfig, path: str | Path) -> None:
+    """Weights, architecture, training config and history in one torch file (``load_checkpoint`` reads it back)."""
+    torch.save({"model": model.config, "state_dict": model.state_dict(), "history": history,
+                "train_config": config.as_dict()}, str(path))
+
+
+def load_checkpoint(path: str | Path) -> tuple[TemporalAutoencoder, dict, TrainConfig]:
+    """(model, history, config) from ``save_checkpoint``'s file, on the CPU."""
+    ckpt = torch.load(str(path), map_location="cpu", weights_only=False)
+    model = TemporalAutoencoder(**ckpt["model"])
+    model.load_state_dict(ckpt["state_dict"])
+    return model.eval(), ckpt["history"], TrainConfig(**ckpt["train_config"])
+
+
 #: Licence and provenance of each training source (model card; the shipped model uses only these).
 SOURCE_LICENCES = {
     "uiprmd_vicon": "UI-PRMD (Vakanski et al., Data 2018), Vicon Plug-in-Gait markers -> joint centres; "
@@ -438,6 +455,22 @@ def train_and_export(
         f"{len(test_takes)} held out ({', '.join(sorted({t.group for t in test_takes})) or 'none'})"
     )
     model, history = train(train_takes, test_takes, config, log)
+    return export_with_card(model, history, train_takes, test_takes, out_dir, config, log=log, evaluate=evaluate)
+
+
+def export_with_card(
+    model: TemporalAutoencoder,
+    history: dict,
+    train_takes: list[Take],
+    test_takes: list[Take],
+    out_dir: str | Path,
+    config: TrainConfig,
+    log: Callable[[str], None] = print,
+    evaluate: bool = True,
+) -> dict:
+    """Export a trained ``model`` (``train``'s model and history) to ONNX and write its card ``<out>/canonical.json``
+    and ``canonical.md``, with the held-out scores when ``evaluate``. Apart from ``train`` so that a model trained
+    on another machine (a GPU box, saved with ``save_checkpoint``) is exported and scored here the same way."""
     out_dir = Path(out_dir)
     files = export_onnx(model, out_dir)
     sources = {}
@@ -494,7 +527,8 @@ def train_and_export(
             "final_train_loss": history["train_loss"][-1],
             "final_held_out_loss": history["held_out_loss"][-1] if history["held_out_loss"] else None,
             "seconds": history.get("seconds"),
-            "torch": torch.__version__,
+            "torch": history.get("torch", torch.__version__),
+            "device": history.get("device", config.device),
         },
         "held_out_protocol": "streamfix.evaluation.occlusion in canonical joints at 30 Hz: each 64-frame window of "
         "a held-out take loses joints for the whole window (random 25 % / 50 % = test OTP 75 / 50, or a whole "
@@ -540,7 +574,8 @@ def write_card_markdown(card: dict, path: str | Path) -> None:
         lines.append(f"| {name} | {src['takes']} | {src['minutes']:.1f} | {src['batch_share']} | {src['licence']} |")
     lines += [f"| **total** | {tr['takes']} | {tr['minutes']:.1f} | | |", "",
               f"Observed joints: {tr['observed']}.", "", f"Augmentation: {tr['augmentation']}.", "",
-              f"Loss: {tr['loss']}. Config: `{json.dumps(tr['config'])}`; {tr.get('seconds')} s of training.", "",
+              f"Loss: {tr['loss']}. Config: `{json.dumps(tr['config'])}`; {tr.get('seconds')} s of training on "
+              f"{tr.get('device', tr['config'].get('device', 'cpu'))} (torch {tr.get('torch', '?')}).", "",
               "## Layouts", "", "| layout | joints | canonical joints observed |", "| --- | ---: | --- |"]
     for name, lay in card["layouts"].items():
         lines.append(f"| {name} | {lay['joints']} | {len(lay['observes'])}: {', '.join(lay['observes'])} |")
