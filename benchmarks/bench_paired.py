@@ -140,7 +140,8 @@ def _markdown(records: list[dict], bars: list[dict], info: dict, floor: list[dic
         "debiased mean / p95 relative to the raw sensor; `jitter/ref` the output's mean second "
         "difference over the reference's; `seam` the second difference on window hand-over frames "
         "over the other frames within a hop of them; `<3 Hz mm` the mean of the debiased error's part below 3 Hz. "
-        "Definitions: `streamfix/evaluation/paired.py`.",
+        "Definitions: `streamfix/evaluation/paired.py`."
+        + (f" Engine prior: `{info['prior']}`." if info.get("prior", "shipped") != "shipped" else ""),
         "",
         "```",
         buf.getvalue().strip("\n"),
@@ -167,10 +168,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default=",".join(DEFAULT_METHODS), help="comma-separated method names")
     ap.add_argument("--out", type=Path, default=None,
                     help="results directory (default benchmarks/results; a --limit run writes only with --out)")
+    ap.add_argument("--prior", type=Path, default=None, metavar="PATH",
+                    help="score the engine with this prior (a card or its directory, as serve/clean --prior) instead "
+                         "of the shipped one; writes only with --out")
     args = ap.parse_args(argv)
+    if args.prior is not None:
+        from streamfix.prior.runtime import set_default_prior
+
+        try:
+            set_default_prior(args.prior)  # the worker processes are forked after this: they inherit it
+        except (OSError, ValueError) as exc:
+            ap.error(f"--prior {args.prior}: {exc}")
     if not 1 <= args.workers <= MAX_WORKERS:
         ap.error(f"--workers must be 1..{MAX_WORKERS} (the benchmark machine is shared), got {args.workers}")
-    out_dir = args.out if args.out is not None else (None if args.limit else ROOT / "benchmarks" / "results")
+    out_dir = args.out if args.out is not None else (None if args.limit or args.prior else ROOT / "benchmarks" / "results")
     methods = [m for m in args.methods.split(",") if m]
 
     def progress(done: int, total: int) -> None:
@@ -200,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
               f"({f['x_input']:.3f}x input)")
     info = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "commit": _git_commit(), "seconds": seconds, "workers": args.workers, "limit": args.limit,
-            "methods": methods, "skipped": skipped, "data": str(PAIRED)}
+            "methods": methods, "skipped": skipped, "data": str(PAIRED),
+            "prior": str(args.prior) if args.prior is not None else "shipped"}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         report = {"run": info, "bars": bars, "temporal_floor": floor, "records": records}

@@ -118,6 +118,8 @@ def markdown(summary: dict, seams: dict, bars: list[dict], meta: dict) -> str:
     out = [f"# Sensor protocol ({meta['takes']} takes x {meta['seeds']} seeds, {meta['rate_hz']:g} Hz)", "",
            "Written by `benchmarks/bench_sensor.py`; error model in `docs/SENSOR_ERRORS.md`. "
            "Mean joint error in mm, pooled over takes and seeds.", ""]
+    if meta.get("prior", "shipped") != "shipped":
+        out += [f"Engine prior: `{meta['prior']}`.", ""]
     for key, title in (("err_m", "all joint-frames"), ("err_corrupted_m", "corrupted joint-frames"),
                        ("err_clean_m", "uncorrupted joint-frames (collateral damage)")):
         out += [f"## {title}", "", "| kind | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
@@ -144,9 +146,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=3, help="seeds per take and kind (default 3)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2, the most allowed)")
     p.add_argument("--files", nargs="+", type=Path, default=None, help="BVH takes (default: all CMU and Xia takes)")
-    p.add_argument("--out", type=Path, default=RESULTS, help="results folder (default benchmarks/results)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="results folder (default benchmarks/results; a --prior run writes only with --out)")
     p.add_argument("--records", action="store_true", help="also write every record into sensor.json (large)")
+    p.add_argument("--prior", type=Path, default=None, metavar="PATH",
+                   help="score the engine with this prior (a card or its directory, as serve/clean --prior) "
+                        "instead of the shipped one")
     args = p.parse_args(argv)
+    if args.prior is not None:
+        from streamfix.prior.runtime import set_default_prior
+
+        try:
+            set_default_prior(args.prior)  # checked here; each worker process sets it too (initializer below)
+        except (OSError, ValueError) as exc:
+            print(f"bench_sensor: --prior {args.prior}: {exc}", file=sys.stderr)
+            return 2
+    out_dir = args.out if args.out is not None else (None if args.prior is not None else RESULTS)
     files = args.files or sorted((DATA / "cmu_bvh").glob("*.bvh")) + sorted((DATA / "xia_bvh").glob("*.bvh"))
     if not files:
         print(f"bench_sensor: no BVH takes found under {DATA}", file=sys.stderr)
@@ -155,29 +170,38 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"bench_sensor: methods not in this registry, skipped: {', '.join(missing)}", file=sys.stderr)
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=max(1, min(args.workers, 2))) as pool:
+    init = {}
+    if args.prior is not None:
+        from streamfix.prior.runtime import set_default_prior
+
+        init = {"initializer": set_default_prior, "initargs": (str(args.prior),)}
+    with ProcessPoolExecutor(max_workers=max(1, min(args.workers, 2)), **init) as pool:
         records = [r for recs in pool.map(_job, [(str(f), args.seeds) for f in files]) for r in recs]
     wall = time.perf_counter() - t0
     summary = summarise(records)
     seams = {m: v["seam_ratio"] for m, v in summarise([dict(r, kind="all") for r in records])["all"].items()}
     bars = [b for m in ENGINE_SCHEDULES if m in METHODS for b in check_bars(summary, seams.get(m), m)]
     meta = {"takes": len(files), "seeds": args.seeds, "rate_hz": DEFAULT_RATE_HZ, "wall_s": wall,
-            "files": [_shown(f) for f in files], "missing_methods": missing}
+            "files": [_shown(f) for f in files], "missing_methods": missing,
+            "prior": str(args.prior) if args.prior is not None else "shipped"}
     print(format_table(records))
     print("\nbars:")
     for b in bars:
         fmt = (lambda v: f"{v:.3f}") if "seam" in b["bar"] else (lambda v: f"{_mm(v)} mm")
         print(f"  {'ok  ' if b['ok'] else 'MISS'} {b['kind']:<8} {b['bar']}: {fmt(b['value'])} (target {fmt(b['target'])})")
-    args.out.mkdir(parents=True, exist_ok=True)
+    n_miss = sum(not b["ok"] for b in bars)
+    if out_dir is None:
+        print(f"\n{len(bars) - n_miss}/{len(bars)} bars met; {len(records)} records in {wall:.0f} s (not written: no --out)")
+        return 1 if n_miss else 0
+    out_dir.mkdir(parents=True, exist_ok=True)
     per_file = {_shown(f): summarise([r for r in records if r["file"] == str(f)]) for f in files}
     doc = {"meta": meta, "summary": summary, "seam_ratio": seams, "bars": bars, "per_file": per_file}
     if args.records:
         doc["records"] = records
-    (args.out / "sensor.json").write_text(json.dumps(doc, indent=1) + "\n")
-    (args.out / "sensor.md").write_text(markdown(summary, seams, bars, meta))
-    n_miss = sum(not b["ok"] for b in bars)
+    (out_dir / "sensor.json").write_text(json.dumps(doc, indent=1) + "\n")
+    (out_dir / "sensor.md").write_text(markdown(summary, seams, bars, meta))
     print(f"\n{len(bars) - n_miss}/{len(bars)} bars met; {len(records)} records in {wall:.0f} s; "
-          f"wrote {args.out / 'sensor.json'} and sensor.md")
+          f"wrote {out_dir / 'sensor.json'} and sensor.md")
     return 1 if n_miss else 0
 
 
