@@ -50,8 +50,12 @@ def test_bench_sensor_scores_the_engine_with_the_given_prior(shared_data, tmp_pa
 
 
 def test_a_prior_that_does_not_load_fails_before_any_work(tmp_path, capsys, bench_module):
+    """...and leaves the process's default prior as it was (the shipped one here)."""
+    from streamfix.prior.runtime import DEFAULT_CARD, load_default_prior
+
     assert bench_module("bench_sensor").main(["--prior", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     assert "--prior" in capsys.readouterr().err and not (tmp_path / "out").exists()
     with pytest.raises(SystemExit) as exc:
         bench_module("bench_paired").main(["--prior", str(tmp_path / "nowhere")])
     assert exc.value.code == 2 and "prior model card not found" in capsys.readouterr().err
+    assert load_default_prior().directory == DEFAULT_CARD.parent

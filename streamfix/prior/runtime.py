@@ -247,12 +247,19 @@ def set_default_prior(path: str | Path | None) -> None:
 
     What ``streamfix serve/clean --prior PATH`` call: everything that takes ``prior=None``
     (the streaming bridge, ``prior_initial_guess``, ``fill_long_gaps``, ``limb_residuals``)
-    then uses it. The card is loaded and checked at once, so a bad path fails here.
+    then uses it. The card is loaded and checked at once, so a bad path fails here and the
+    default stays what it was.
     """
     global _DEFAULT_PATH
+    previous = _DEFAULT_PATH
     _DEFAULT_PATH = None if path is None else str(path)
     _load_cached.cache_clear()
-    load_default_prior()
+    try:
+        load_default_prior()
+    except Exception:
+        _DEFAULT_PATH = previous
+        _load_cached.cache_clear()
+        raise
 
 
 @lru_cache(maxsize=4)
