@@ -153,14 +153,16 @@ def main(argv: list[str] | None = None) -> int:
                    help="score the engine with this prior (a card or its directory, as serve/clean --prior) "
                         "instead of the shipped one")
     args = p.parse_args(argv)
+    init = {}  # worker processes load the --prior too (whatever their start method)
     if args.prior is not None:
         from streamfix.prior.runtime import set_default_prior
 
         try:
-            set_default_prior(args.prior)  # checked here; each worker process sets it too (initializer below)
+            set_default_prior(args.prior)  # a bad path fails here, before any work
         except (OSError, ValueError) as exc:
             print(f"bench_sensor: --prior {args.prior}: {exc}", file=sys.stderr)
             return 2
+        init = {"initializer": set_default_prior, "initargs": (str(args.prior),)}
     out_dir = args.out if args.out is not None else (None if args.prior is not None else RESULTS)
     files = args.files or sorted((DATA / "cmu_bvh").glob("*.bvh")) + sorted((DATA / "xia_bvh").glob("*.bvh"))
     if not files:
@@ -170,11 +172,6 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         print(f"bench_sensor: methods not in this registry, skipped: {', '.join(missing)}", file=sys.stderr)
     t0 = time.perf_counter()
-    init = {}
-    if args.prior is not None:
-        from streamfix.prior.runtime import set_default_prior
-
-        init = {"initializer": set_default_prior, "initargs": (str(args.prior),)}
     with ProcessPoolExecutor(max_workers=max(1, min(args.workers, 2)), **init) as pool:
         records = [r for recs in pool.map(_job, [(str(f), args.seeds) for f in files]) for r in recs]
     wall = time.perf_counter() - t0

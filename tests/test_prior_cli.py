@@ -100,7 +100,7 @@ def test_a_checkpoint_trained_elsewhere_exports_with_the_same_card(shared_data, 
     takes = [canonical_take(load_take(shared_data / "kinect_v2" / "Ges01_wavehand.csv"), "kinect_v2")]
     cfg = TrainConfig(epochs=1, steps_per_epoch=2, batch=4, channels=8, latent=4)
     model, history = train(takes, takes, cfg, log=lambda s: None)
-    history["device"] = "cuda:0"  # as a GPU run records it
+    cfg.device = "cuda:0"  # as a GPU run's config records it
     save_checkpoint(model, history, cfg, tmp_path / "run.pt")
     loaded, hist2, cfg2 = load_checkpoint(tmp_path / "run.pt")
     assert cfg2.as_dict() == cfg.as_dict() and hist2["train_loss"] == history["train_loss"]

@@ -230,7 +230,6 @@ def train(
     model.to("cpu")
     history["seconds"] = round(time.perf_counter() - t_start, 1)
     history["torch"] = torch.__version__
-    history["device"] = str(device)
     history["reference_bone_lengths_m"] = ref.tolist()
     history["facing_template"] = np.round(template, 5).tolist()
     return model, history
@@ -528,7 +527,7 @@ def export_with_card(
             "final_held_out_loss": history["held_out_loss"][-1] if history["held_out_loss"] else None,
             "seconds": history.get("seconds"),
             "torch": history.get("torch", torch.__version__),
-            "device": history.get("device", config.device),
+            "device": config.device,
         },
         "held_out_protocol": "streamfix.evaluation.occlusion in canonical joints at 30 Hz: each 64-frame window of "
         "a held-out take loses joints for the whole window (random 25 % / 50 % = test OTP 75 / 50, or a whole "
@@ -574,8 +573,8 @@ def write_card_markdown(card: dict, path: str | Path) -> None:
         lines.append(f"| {name} | {src['takes']} | {src['minutes']:.1f} | {src['batch_share']} | {src['licence']} |")
     lines += [f"| **total** | {tr['takes']} | {tr['minutes']:.1f} | | |", "",
               f"Observed joints: {tr['observed']}.", "", f"Augmentation: {tr['augmentation']}.", "",
-              f"Loss: {tr['loss']}. Config: `{json.dumps(tr['config'])}`; {tr.get('seconds')} s of training on "
-              f"{tr.get('device', tr['config'].get('device', 'cpu'))} (torch {tr.get('torch', '?')}).", "",
+              f"Loss: {tr['loss']}. Config: `{json.dumps(tr['config'])}`; {tr.get('seconds')} s of training "
+              f"(torch {tr.get('torch', '?')}).", "",
               "## Layouts", "", "| layout | joints | canonical joints observed |", "| --- | ---: | --- |"]
     for name, lay in card["layouts"].items():
         lines.append(f"| {name} | {lay['joints']} | {len(lay['observes'])}: {', '.join(lay['observes'])} |")
