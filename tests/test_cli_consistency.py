@@ -9,6 +9,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -129,12 +130,35 @@ def test_eval_progress_line_on_request(shared_data):
 
 
 def test_ctrl_c_during_serve_start_up_is_one_line_not_a_traceback():
-    proc = subprocess.Popen([sys.executable, "-m", "streamfix", "serve", "--out", f"tcp://127.0.0.1:{free_port()}"],
+    """Ctrl-C while ``serve`` loads its service and engine. The signal goes once the child is
+    in streamfix's own code (``-X importtime`` reports the first module under ``streamfix.cli``
+    imported: ``main`` is building the command line, and the service, numpy and zmq are still
+    to load): a fixed delay raced the interpreter's own start-up on a loaded machine, where a
+    Ctrl-C is Python's traceback, not streamfix's."""
+    proc = subprocess.Popen([sys.executable, "-X", "importtime", "-m", "streamfix", "serve",
+                             "--out", f"tcp://127.0.0.1:{free_port()}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=child_env(),
                             cwd=str(PROJECT_ROOT))
-    time.sleep(0.8)  # the package is loaded; serve is importing its service and engine
-    proc.send_signal(signal.SIGINT)
-    err = proc.communicate(timeout=60)[1]
+    lines: list[str] = []
+    in_main = threading.Event()
+
+    def read() -> None:
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("import time:") and line.rsplit("|", 1)[-1].strip().startswith("streamfix.cli."):
+                in_main.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert in_main.wait(60), "".join(lines)
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    reader.join(10)
+    err = "".join(line for line in lines if not line.startswith("import time:"))
     # 130, or killed by SIGINT (-2): CPython re-raises SIGINT at exit when a native module's
     # init was interrupted, even though streamfix caught the KeyboardInterrupt
     assert proc.returncode in (130, -signal.SIGINT, 0), err
