@@ -476,22 +476,23 @@ def noisy_identity(share):
 @pytest.mark.parametrize("share", [1.0, 0.5])
 def test_output_smoothing_is_the_twiced_binomial_of_noisy_windows(kinect, share):
     """Windows that report sensor noise get the kernel on their blended output: with the
-    identity solver, every frame with two blended neighbours each side is the kernel over
+    identity solver, every frame with 2h blended neighbours each side is the kernel over
     the input (the future neighbours are the newest window's values: no extra latency),
-    a body's first and last two frames keep theirs."""
+    a body's first and last 2h frames keep theirs (h = 2 frames at 30 Hz)."""
     from streamfix.core.filters import twiced_binomial_taps
 
     cfg = EngineConfig(rate_hz=kinect.rate_hz)
-    assert cfg.output_smooth_frames == 1
+    h = cfg.output_smooth_frames
+    assert h == 2
     out, _ = run(StreamEngine(KINECT_V2, cfg, noisy_identity(share)), frames_of(kinect, uniform=True))
     got = body_array(split(out)[1])
     x = kinect.positions
     assert np.isfinite(x).all()
-    taps = twiced_binomial_taps(1)
-    T = len(x)
-    smooth = sum(t * x[k:T - 4 + k] for k, t in enumerate(taps))
+    taps = twiced_binomial_taps(h)
+    T, r = len(x), 2 * h
+    smooth = sum(t * x[k:T - 2 * r + k] for k, t in enumerate(taps))
     expect = x.copy()
-    expect[2:T - 2] = share * smooth + (1.0 - share) * x[2:T - 2]
+    expect[r:T - r] = share * smooth + (1.0 - share) * x[r:T - r]
     np.testing.assert_allclose(got, expect, rtol=0, atol=1e-12)
     assert np.abs(got - x).max() > 1e-4  # it smoothed
 

@@ -23,10 +23,17 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    :func:`_bone_spread`; for marker sets the most rigid marker pairs) wins. A skeleton's
    bones are rigid, so this needs no ground truth: a fit that follows the clean samples
    keeps them constant, one that chased corrupted samples does not. Ties go to the
-   shortest window (least bias). **Scored where the output is used**: ``serve`` publishes a
-   frame from windows where it lies 6-15 frames from the newest, so the engine has the score
-   taken over the newest frames its blend uses (``score_newest_frames``: lookahead + hop +
-   crossfade, plus the widest fit's half-width); over the whole 2 s window, a wide fit that
+   shortest window (least bias). **The median alone only where it is unbiased**
+   (``fallback_max_residual_ratio``): a smoother's bias on fast motion flattens a whole limb
+   alike and so keeps its bones rigid, which the score cannot see, while noise on every
+   sample always scores the smoother more rigid; so the running median + Savitzky-Golay
+   stands alone only where its median absolute residual is at most 1.5x the chosen fit's
+   (under heavy corruption the fit's residual is as large as the median's). Without it,
+   short fast takes of the sensor protocol's noise came out worse than the input
+   (``benchmarks/results/sensor.md``, per take). **Scored where the output is used**:
+   ``serve`` publishes a frame from windows where it lies 6-15 frames from the newest, so the
+   engine has the score taken over the newest frames its blend uses (``score_newest_frames``:
+   lookahead + hop + crossfade, plus the widest fit's half-width); over the whole 2 s window, a wide fit that
    suited the already-published older frames was used where a hand moved fast (KERAAL,
    ``tests/test_paired_engine_quality.py``). The file schedule's windows are used whole.
    **Frame by frame** (``local_width_s``): the window's speed and corruption change within
@@ -140,6 +147,8 @@ class PipelineConfig:
     h_min_frames: int = 2
     median_fallback: bool = True
     fallback_margin: float = 1.0
+    # the median candidate alone only while its residual is at most this x the best fit's (None = always)
+    fallback_max_residual_ratio: float | None = 1.5
     blend_support: float = 0.5
     min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
@@ -352,6 +361,12 @@ def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
     fit, _ = fit_local_quadratic(y, w, h)
     r = np.abs(y - fit)[w > 0]
     return float(1.4826 * np.median(r)) if r.size else 0.0
+
+
+def _median_abs(resid: np.ndarray) -> float:
+    """Median absolute residual (m) over the observed coordinates (NaN elsewhere); 0 for none."""
+    r = np.abs(resid[np.isfinite(resid)])
+    return float(np.median(r)) if r.size else 0.0
 
 
 def _estimate(x: np.ndarray, obs3: np.ndarray, fit: np.ndarray, resid: np.ndarray, cfg: "PipelineConfig") -> np.ndarray:
@@ -745,7 +760,13 @@ def clean_window(
         blend = np.where(np.isfinite(med), a * fit + (1.0 - a) * np.nan_to_num(med), fit)
         blend_resid = np.where(obs3, x - blend, np.nan)
         spreads["blend"] = spread(_estimate(x, obs3, blend, blend_resid, cfg))
-        if spreads["median_savgol"] < cfg.fallback_margin * min(spreads[fit_key], spreads["blend"]):
+        # the median's bias on fast motion flattens a whole limb alike, which keeps its bones
+        # rigid, so the score cannot see it: its residual can (module doc, stage 1)
+        r_fit = _median_abs(resid)
+        ratio = _median_abs(med_resid) / r_fit if r_fit > 0 else np.inf
+        info["median_residual_ratio"] = ratio
+        biased = cfg.fallback_max_residual_ratio is not None and ratio > cfg.fallback_max_residual_ratio
+        if not biased and spreads["median_savgol"] < cfg.fallback_margin * min(spreads[fit_key], spreads["blend"]):
             chosen, fit, resid = "median_savgol", med, med_resid
         elif spreads["blend"] < spreads[fit_key]:
             chosen, fit, resid = "blend", blend, blend_resid

@@ -8,7 +8,11 @@ __all__ = ["FILL_DISTANCE_M", "FILL_SMOOTH_S", "HANDOVER_S", "OUTPUT_SMOOTH_S", 
            "next_window_end", "smooth_blended", "window_ends"]
 
 HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see handover_weights
-OUTPUT_SMOOTH_S = 1.0 / 30.0  # binomial half-width of the output smoothing: 1 frame at 30 Hz = the 5-tap twiced kernel
+# binomial half-width of the output smoothing: 2 frames at 30 Hz = the 9-tap twiced kernel. Wider
+# than 1 frame since clean_window keeps the median estimator only where it is unbiased
+# (core/pipeline.py, stage 1): the windows where a noisy sensor lost it (UI-PRMD's Kinect v1)
+# took their smoothing from it, and at 1 frame serve's output jitter rose past 2.5x the Vicon's
+OUTPUT_SMOOTH_S = 2.0 / 30.0
 # A joint-frame the windows recovered and placed at least FILL_DISTANCE_M from the sensor's
 # sample (or that had none) is the model's fill, not a measurement: the sensor errors it
 # replaces (a broken leg, a lost hand) are decimetres, its noise centimetres
