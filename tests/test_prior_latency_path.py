@@ -3,7 +3,8 @@
 The latency path validates its input once, uses per-layout index maps built once and fits the one
 window of a stream; the reference below goes the long way on the same real Kinect v2 take: the
 public canonical mapping, windows cut with NaN and zeroed, ``fit_latent`` on a *batch* (its general
-multi-window code), the public ``from_canonical`` and the gap offsets frame by frame. The fills must
+multi-window code) holding the window's mirror image too (``MIRROR_ENSEMBLE``: the two fits are
+averaged, the mirrored one mirrored back), the public ``from_canonical`` and the gap offsets frame by frame. The fills must
 agree to 1e-6 m. ``normalise`` is checked against textbook numpy (np.interp, np.median, the
 Procrustes sums) on windows whose root is observed, missing (hips fallback) or gone with the hips.
 """
@@ -12,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.canonical import CANONICAL_BONES, from_canonical, to_canonical
+from streamfix.canonical import CANONICAL_BONES, CANONICAL_MIRROR, from_canonical, to_canonical
 from streamfix.prior.data import CANONICAL_NORM, cut_windows, load_take
-from streamfix.prior.init import CHORD_DAMPING, CHORD_STEPS, fill_long_gaps
+from streamfix.prior.init import CHORD_DAMPING, CHORD_STEPS, MIRROR_ENSEMBLE, fill_long_gaps
 from streamfix.prior.latent import fit_latent
 from streamfix.prior.normalize import normalise, rot_y
 from streamfix.prior.runtime import load_default_prior
@@ -33,10 +34,15 @@ def _reference_fill(prior, x, obs, min_gap_frames, other_window):
     cx, cobs = to_canonical(x, obs, "kinect_v2")
     wins, masks, _ = cut_windows(cx, cobs, prior.window)
     assert len(wins) == 1
-    batch, batch_masks = np.concatenate([wins, other_window[0]]), np.concatenate([masks, other_window[1]])
+    flip = np.array([-1.0, 1.0, 1.0])
+    mirrored = np.nan_to_num(wins[0])[:, CANONICAL_MIRROR] * flip  # x negated, left and right swapped
+    batch = np.concatenate([wins, other_window[0], mirrored[None]])
+    batch_masks = np.concatenate([masks, other_window[1], masks[:, :, CANONICAL_MIRROR]])
     fit = fit_latent(prior, np.nan_to_num(batch), batch_masks, max_iter=CHORD_STEPS, jacobian_steps=0,
-                     damping=CHORD_DAMPING)  # the general batch code (B = 2)
-    est = from_canonical(fit.decoded[0, :len(x)], "kinect_v2", x, obs)
+                     damping=CHORD_DAMPING)  # the general batch code (B = 3)
+    assert MIRROR_ENSEMBLE  # the default: the window and its mirror image, the second mirrored back
+    canonical_est = 0.5 * (fit.decoded[0] + fit.decoded[2][:, CANONICAL_MIRROR] * flip)
+    est = from_canonical(canonical_est[:len(x)], "kinect_v2", x, obs)
     out = np.where(obs[..., None], x, np.nan)
     for j in range(x.shape[1]):  # joints and their gaps, one at a time
         seen = np.flatnonzero(obs[:, j])

@@ -35,7 +35,9 @@ How the other layers call it
   ``limb_joint_mask(J, ("left_arm", "right_arm"), skeleton)`` marks.
 
 D(z*) here is the chord method of ``streamfix.prior.latent``: one decoder-Jacobian call at
-E(Y) and ``CHORD_STEPS`` damped steps on it, the cost that fits the streaming budget.
+E(Y) and ``CHORD_STEPS`` damped steps on it, the cost that fits the streaming budget. Both
+D(z*) and D(E(Y)) reconstruct each window twice, as it is and as its mirror image, and
+average the two (``MIRROR_ENSEMBLE``).
 
 All three accept the prior's own joints (the canonical 20) or any layout that
 ``streamfix.canonical`` maps (told apart by joint count: Kinect v2 25, Azure Kinect 32,
@@ -66,6 +68,7 @@ __all__ = [
     "PRIOR_INIT_RHO_FACTOR",
     "CHORD_STEPS",
     "CHORD_DAMPING",
+    "MIRROR_ENSEMBLE",
 ]
 
 # A solver started from the prior begins its penalty ramp (rho_k = eta^k rho0, Algorithm 1
@@ -82,6 +85,14 @@ PRIOR_INIT_RHO_FACTOR = 1.3**20
 # run to convergence) lowers it a little, at about half the budget each (benchmarks/bench_prior.py).
 CHORD_STEPS = 1
 CHORD_DAMPING = 0.3
+
+# Each window is also reconstructed as its mirror image (x negated, left and right joints swapped) and the
+# mirrored reconstruction mirrored back is averaged with the direct one. The model saw every training
+# window both ways, but it is not exactly symmetric; the two reconstructions err differently on a pose
+# it knows less well, and their mean errs less (held-out cells, benchmarks/bench_prior.py). The mirror
+# images ride in the same batch, so the cost is one larger onnxruntime call, not two.
+MIRROR_ENSEMBLE = True
+_FLIP_X = np.array([-1.0, 1.0, 1.0])
 
 
 def prior_available(n_joints: int, prior: Prior | None = None, skeleton: str | None = None) -> bool:
@@ -240,6 +251,11 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
     xr, obr = (x, obs) if rate_hz == prior.rate_hz else resample_masked(x, obs, rate_hz, prior.rate_hz)
     w_len = prior.window
     wins, masks, starts = cut_windows(xr, obr, w_len, w_len // 2, fill=0.0)
+    mirror = prior.mirror if MIRROR_ENSEMBLE else None
+    n_win = wins.shape[0]
+    if mirror is not None:  # the mirror images ride in the same batch (one onnxruntime call)
+        wins = np.concatenate([wins, wins[:, :, mirror] * _FLIP_X])
+        masks = np.concatenate([masks, masks[:, :, mirror]])
     if method == "latent":
         from .latent import fit_latent
 
@@ -249,6 +265,9 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
         rec = fit_latent(prior, wins, masks, max_iter=max_iter, jacobian_steps=0, damping=CHORD_DAMPING).decoded
     else:
         rec = prior.reconstruct(wins, masks)
+    if mirror is not None:
+        rec = 0.5 * (rec[:n_win] + rec[n_win:][:, :, mirror] * _FLIP_X)
+        masks = masks[:n_win]
     # a window that saw too little of the body (fewer than 3 joints ever) says nothing about it
     valid = masks.any(axis=1).sum(axis=1) >= 3
     if not valid.any():

@@ -127,6 +127,14 @@ class Prior:
         t = self.card["normalisation"].get("facing_template")
         return None if t is None else _read_only(np.asarray(t, dtype=np.float64))
 
+    @cached_property
+    def mirror(self) -> np.ndarray | None:
+        """``(J,)`` each joint's left/right twin (``streamfix.canonical.CANONICAL_MIRROR``) for a model of
+        the canonical joints, which ``train-prior`` trains with mirrored copies; None for other joint sets."""
+        from streamfix.canonical import CANONICAL_JOINTS, CANONICAL_MIRROR
+
+        return CANONICAL_MIRROR if tuple(self.card.get("joints", ())) == CANONICAL_JOINTS else None
+
     @property
     def jacobian_frame_step(self) -> int:
         """The decoder-Jacobian graph's ``jac`` holds the rows of every this-many-th frame (1: every frame)."""
