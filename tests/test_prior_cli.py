@@ -130,3 +130,46 @@ def test_source_shares_decide_where_batches_come_from():
     p = source_weights(takes, {"bvh": 0.75, "uiprmd_vicon": 0.25})
     np.testing.assert_allclose(p, [0.75, 0.25 / 3, 0.5 / 3])
     assert source_weights(takes, {"bvh": 0.0, "uiprmd_vicon": 1.0})[0] == 0.0
+
+
+def test_rescore_rewrites_the_held_out_scores_of_an_exported_card(tmp_path, shared_data):
+    import json
+    import shutil
+
+    from streamfix.evaluation.occlusion import score_prior_on_takes
+    from streamfix.io.prior_takes import canonical_takes
+    from streamfix.prior.data import split_takes
+    from streamfix.prior.runtime import DEFAULT_CARD, Prior
+
+    model = tmp_path / "model"
+    model.mkdir()
+    for f in DEFAULT_CARD.parent.glob("canonical.*"):
+        shutil.copy(f, model / f.name)
+    card_path = model / "canonical.json"
+    card = json.loads(card_path.read_text())
+    card["training"]["held_out"] = ["131_02"]  # one held-out take keeps the test short
+    card["held_out_scores"] = [{"take": "stale", "pattern": "random", "test_otp": 50.0, "method": "prior_latent",
+                                "rmse_m": 9.0, "rmse_dropped_m": 9.0, "windows": 1, "time_ms": 0.0}]
+    card["held_out_protocol"] = "an older protocol"
+    card_path.write_text(json.dumps(card))
+    proc = subprocess.run([sys.executable, "-m", "streamfix", "train-prior", "--data", str(shared_data),
+                           "--rescore", str(card_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    new = json.loads(card_path.read_text())
+    _, held = split_takes(canonical_takes(shared_data, kinect_v1=True), ("131_02",))
+    want = score_prior_on_takes(card_path, held, seed=card["training"]["config"]["seed"])
+    untimed = lambda recs: [{k: v for k, v in r.items() if k != "time_ms"} for r in recs]  # noqa: E731
+    assert untimed(new["held_out_scores"]) == untimed(want)
+    assert {r["take"] for r in new["held_out_scores"]} == {"131_02"}
+    assert "MIRROR_ENSEMBLE" in new["held_out_protocol"]
+    assert new["files"] == card["files"]  # the graphs are untouched and still load against the card
+    Prior.load(card_path)
+    md = (model / "canonical.md").read_text()
+    assert "| 131_02 | random | 50 |" in md and "stale" not in md
+
+    card["training"]["held_out"] = ["no_such_take"]
+    card_path.write_text(json.dumps(card))
+    proc = subprocess.run([sys.executable, "-m", "streamfix", "train-prior", "--data", str(shared_data),
+                           "--rescore", str(card_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    assert "no_such_take" in proc.stderr and "Traceback" not in proc.stderr

@@ -16,7 +16,10 @@ HELP = "train the learned motion prior (temporal-conv autoencoder, canonical bod
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", default="../shared/data",
                         help="directory holding cmu_bvh/, xia_bvh/, kinect_v2/, c3d/ and paired/uiprmd/ (default: ../shared/data)")
-    parser.add_argument("--out", required=True, help="output directory for canonical.{encoder,decoder,decoder_jacobian}.onnx and canonical.json")
+    parser.add_argument("--out", help="output directory for canonical.{encoder,decoder,decoder_jacobian}.onnx and canonical.json")
+    parser.add_argument("--rescore", metavar="CARD",
+                        help="train nothing: score the held-out takes of an exported model's card (a canonical.json) "
+                             "again with this version's inference and rewrite the card and its .md")
     parser.add_argument("--epochs", type=int, default=_DEFAULTS["epochs"], help="epochs of --steps batches")
     parser.add_argument("--steps", type=int, default=_DEFAULTS["steps_per_epoch"], help="batches per epoch")
     parser.add_argument("--seed", type=int, default=0, help="seed for weights, windows, augmentation and masks (default 0)")
@@ -52,6 +55,18 @@ def run(args: argparse.Namespace) -> int:
     data = Path(args.data)
     if not data.is_dir():
         print(f"train-prior: data directory {data} not found", file=sys.stderr)
+        return 2
+    if args.rescore:
+        from streamfix.prior.train import rescore_card
+
+        try:
+            rescore_card(args.rescore, data, log=lambda s: print(s, flush=True))
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"train-prior --rescore {args.rescore}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            return 2
+        return 0
+    if not args.out:
+        print("train-prior: --out DIR is required (or --rescore CARD)", file=sys.stderr)
         return 2
     held = tuple(args.held_out) if args.held_out else HELD_OUT
     shares = dict(SOURCE_SHARES)

@@ -47,7 +47,7 @@ from .normalize import apply_norm, normalise
 from .runtime import sha256_file
 
 __all__ = ["TrainConfig", "train", "export_onnx", "held_out_windows", "train_and_export", "export_with_card",
-           "save_checkpoint", "load_checkpoint"]
+           "rescore_card", "save_checkpoint", "load_checkpoint", "HELD_OUT_PROTOCOL"]
 
 
 class TrainConfig:
@@ -529,26 +529,55 @@ def export_with_card(
             "torch": history.get("torch", torch.__version__),
             "device": config.device,
         },
-        "held_out_protocol": "streamfix.evaluation.occlusion in canonical joints at 30 Hz: each 64-frame window of "
-        "a held-out take loses joints for the whole window (random 25 % / 50 % = test OTP 75 / 50, or a whole "
-        "limb of 4 joints); rmse_m over every ground-truth joint-frame (observed ones are returned unchanged), "
-        "rmse_dropped_m over the dropped ones; methods nearest_joint (baseline), prior_encode D(E(Y)), "
-        "prior_latent D(z*) (one decoder-Jacobian call at E(Y), then streamfix.prior.init.CHORD_STEPS damped "
-        "Levenberg-Marquardt step(s) on it: what the streaming bridge runs)",
+        "held_out_protocol": HELD_OUT_PROTOCOL,
         "held_out_scores": [],
     }
     card_path = out_dir / "canonical.json"
     card_path.write_text(json.dumps(card, indent=1))
     if evaluate and test_takes:
-        from streamfix.evaluation.occlusion import score_prior_on_takes
-
-        card["held_out_scores"] = score_prior_on_takes(card_path, test_takes, seed=config.seed)
-        card_path.write_text(json.dumps(card, indent=1))
-        for rec in card["held_out_scores"]:
-            log(f"held-out {rec['take']:>16s} {rec['pattern']:>10s} OTP {rec['test_otp']:3.0f}%  {rec['method']:>12s}  "
-                f"RMSE {100 * rec['rmse_m']:.2f} cm (dropped {100 * rec['rmse_dropped_m']:.2f})")
+        _score_card(card, card_path, test_takes, config.seed, log)
     write_card_markdown(card, out_dir / "canonical.md")
     log(f"wrote {card_path} and canonical.md")
+    return card
+
+
+HELD_OUT_PROTOCOL = (
+    "streamfix.evaluation.occlusion in canonical joints at 30 Hz: each 64-frame window of "
+    "a held-out take loses joints for the whole window (random 25 % / 50 % = test OTP 75 / 50, or a whole "
+    "limb of 4 joints); rmse_m over every ground-truth joint-frame (observed ones are returned unchanged), "
+    "rmse_dropped_m over the dropped ones; methods nearest_joint (baseline), prior_encode D(E(Y)), "
+    "prior_latent D(z*) (one decoder-Jacobian call at E(Y), then streamfix.prior.init.CHORD_STEPS damped "
+    "Levenberg-Marquardt step(s) on it: what the streaming bridge runs); both prior methods average each "
+    "window's reconstruction with that of its mirror image, mirrored back (streamfix.prior.init.MIRROR_ENSEMBLE)"
+)
+
+
+def _score_card(card: dict, card_path: Path, test_takes: list[Take], seed: int, log: Callable[[str], None]) -> None:
+    """The card's held-out scores (``HELD_OUT_PROTOCOL``) with today's inference, written into ``card_path``."""
+    from streamfix.evaluation.occlusion import score_prior_on_takes
+
+    card["held_out_protocol"] = HELD_OUT_PROTOCOL
+    card["held_out_scores"] = score_prior_on_takes(card_path, test_takes, seed=seed)
+    card_path.write_text(json.dumps(card, indent=1))
+    for rec in card["held_out_scores"]:
+        log(f"held-out {rec['take']:>16s} {rec['pattern']:>10s} OTP {rec['test_otp']:3.0f}%  {rec['method']:>12s}  "
+            f"RMSE {100 * rec['rmse_m']:.2f} cm (dropped {100 * rec['rmse_dropped_m']:.2f})")
+
+
+def rescore_card(card_path: str | Path, data_dir: str | Path, log: Callable[[str], None] = print) -> dict:
+    """Score an exported model's held-out takes again with today's inference (the model is unchanged: the
+    graphs' hashes are checked on load) and rewrite its card and ``.md``; the held-out takes are the
+    card's own (``training.held_out``), the seed its training seed."""
+    card_path = Path(card_path)
+    card = json.loads(card_path.read_text())
+    held = tuple(card["training"]["held_out"])
+    kinect_v1 = "uiprmd_kinect_v1" in card["training"]["sources"]
+    _, test_takes = split_takes(canonical_takes(data_dir, kinect_v1=kinect_v1), held)
+    if not test_takes:
+        raise ValueError(f"{card_path}: none of the card's held-out takes ({', '.join(held)}) is in {data_dir}")
+    _score_card(card, card_path, test_takes, int(card["training"]["config"]["seed"]), log)
+    write_card_markdown(card, card_path.with_suffix(".md"))
+    log(f"wrote {card_path} and {card_path.with_suffix('.md').name}")
     return card
 
 
