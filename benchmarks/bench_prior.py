@@ -266,7 +266,8 @@ def main() -> int:
     ap.add_argument("--data", default=str((HERE / ".." / ".." / "shared" / "data").resolve()))
     ap.add_argument("--repeats", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--uiprmd-takes", type=int, default=60, help="UI-PRMD subject-6 repetitions scored (of 200)")
+    ap.add_argument("--uiprmd-takes", type=int, default=0,
+                    help="UI-PRMD subject-6 repetitions scored (default 0: all of them, as the model card)")
     ap.add_argument("--prior", default=None, help="model card (default: the shipped one)")
     ap.add_argument("--out", default=str(HERE / "results" / "prior.json"))
     args = ap.parse_args()
