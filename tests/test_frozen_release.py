@@ -68,3 +68,41 @@ def test_release_state_reframes_onto_a_window_of_another_length():
     want[0:2, 0] = True
     np.testing.assert_array_equal(later.released, want)
     assert not st.reframed(9, 5).released.any()  # no common frame
+
+
+def _bending_arms(T: int, rate_hz: float) -> np.ndarray:
+    """A root and two arms (joints 1-3 left elbow/wrist/hand, 4-6 right), 0.3 / 0.25 / 0.08 m,
+    bending at 0.5 Hz, the right half a period behind."""
+    t = np.arange(T) / rate_hz
+    x = np.zeros((T, 7, 3))
+    for first, phase in ((1, 0.0), (4, np.pi)):
+        ang = 0.8 * np.sin(2 * np.pi * 0.5 * t + phase)
+        for k, (length, factor) in enumerate(((0.3, 1.0), (0.25, 2.0), (0.08, 2.0))):
+            parent = 0 if k == 0 else first + k - 1
+            x[:, first + k] = x[:, parent] + length * np.stack([np.cos(factor * ang), np.sin(factor * ang),
+                                                                np.zeros(T)], axis=1)
+    return x
+
+
+def test_a_frozen_run_longer_than_the_tracked_span_is_released_whole_within_one_window():
+    """A file's window (here 9 s) can hold a frozen inferred run (6.7 s) whose middle is farther
+    than TRACKED_NEAR_S from every tracked sample: it is released whole, not only near its ends."""
+    from streamfix.core.inferred import TRACKED_NEAR_S
+    from streamfix.streaming.frozen_release import frozen_release
+
+    rate = 30.0
+    T, a, b = 270, 30, 230
+    x = _bending_arms(T, rate)
+    x[a:b, 1:4] = x[a - 1, 1:4][None]  # the left arm stops bending: the sensor's frozen guess
+    conf = np.ones((T, 7))
+    conf[a:b, 1:4] = 0.5  # flagged inferred
+    bones = np.array([[0, 1], [1, 2], [2, 3], [0, 4], [4, 5], [5, 6]])
+    layout = (np.array([False, True, True, True, True, True, True]), np.array([0, 4, 5, 6, 1, 2, 3]))
+    far = (a + int(TRACKED_NEAR_S[1] * rate) + 5, b - int(TRACKED_NEAR_S[1] * rate) - 5)
+    assert far[0] < far[1]  # frames no tracked sample of the arm is near
+    got = frozen_release(x, conf, bones, rate, layout)
+    assert got[a:b, 1:4].all()
+    assert not got[:a].any() and not got[b:].any() and not got[:, 4:].any()
+    held_still = x.copy()  # both arms still: a person holding still, nothing released
+    held_still[:, 4:] = held_still[0, 4:][None]
+    assert not frozen_release(held_still, conf, bones, rate, layout).any()

@@ -116,8 +116,8 @@ def frozen_release(
     """``(T, J)`` bool: the inferred samples of a frozen or drifting limb
     (:func:`streamfix.core.frozen.frozen_inferred`) that the window releases: those near a
     tracked sample of the joint (:func:`streamfix.core.inferred.tracked_proximity`), and
-    whole rigid inferred runs (the twin not asked again) that contain a sample the
-    previous window released (``released_before``, already shifted to this window's frames)."""
+    whole rigid inferred runs (the twin not asked again) that contain one of those or a sample
+    the previous window released (``released_before``, already shifted to this window's frames)."""
     conf = np.asarray(confidence, dtype=np.float64)
     inferred = (conf > 0) & (conf < 1.0)
     if not inferred.any():
@@ -131,4 +131,10 @@ def frozen_release(
         # a run already judged a guess stays one while it stays rigid, whether or not the
         # twin still bends (the twin test tells a guess from a limb held still at its start)
         release |= runs_touching(rigid, released_before)
+    # the same within this window: a run released near a tracked sample is released to its end
+    # while it stays rigid, also where it lies farther than TRACKED_NEAR_S from every tracked
+    # sample (a file's window holding a frozen run longer than twice that span handed its
+    # middle back to the sensor's guess, which windows of a stream reach through the memory)
+    if release.any():
+        release |= runs_touching(rigid, release)
     return release
