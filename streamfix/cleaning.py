@@ -5,8 +5,8 @@ One code path for every offline caller: the ``clean`` command, the archive runne
 :func:`clean_recording`, so a file cleaned from Python, from the command line or on a
 cluster is the same array.
 
-The steps: joint files with a gap of at least a third of a window
-(:func:`streamfix.streaming.bridging.long_gap_frames`, the length the streaming solver
+The steps: joint files with a gap of at least a third of a window (of 3 s for longer windows;
+:func:`streamfix.streaming.bridging.long_gap_frames`, the length the streaming solver
 bridges itself) and marker files without bones first go through the gap filler
 (:func:`streamfix.gapfill.fill_motion_gaps`, PCA trained on the take's own observed
 samples plus optional reference takes): offline the filler sees both ends of every gap.
@@ -81,7 +81,7 @@ def clean_recording(
     source = motion
     notes: list[str] = []
     gapfilled = None
-    want = motion.skeleton.n_bones == 0 or longest_gap(~motion.observed) >= long_gap_frames(cfg.window)
+    want = motion.skeleton.n_bones == 0 or longest_gap(~motion.observed) >= long_gap_frames(cfg.window, cfg.rate_hz)
     if want and gapfill and not motion.observed.all():
         from .gapfill import fill_motion_gaps
 

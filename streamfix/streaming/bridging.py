@@ -14,9 +14,9 @@ recent clean history, "so that it works with no prepared data at all".
 What counts as long (frames; ``T`` = window length)
 ----------------------------------------------------
 * a joint whose run of consecutive missing frames *within the window* is
-  ``>= long_gap_frames(T) = max(LONG_GAP_MIN, ceil(T * LONG_GAP_FRACTION))`` frames
-  (1/3 of the window: 20 frames = 0.67 s at the default W = 60 / 30 Hz). A joint with
-  no observation in the whole window is always long;
+  ``>= long_gap_frames(T, rate) = max(LONG_GAP_MIN, ceil(min(T, GAP_SCALE_MAX_S * rate) * LONG_GAP_FRACTION))``
+  frames (1/3 of the window, or of 3 s for longer windows: 20 frames = 0.67 s at the default
+  W = 60 / 30 Hz). A joint with no observation in the whole window is always long;
 * a blackout: a run of ``>= BLACKOUT_MIN_FRAMES`` (3) consecutive frames in which
   fewer than 3 joints are observed (nothing in the frame ties the joints to each
   other; measured: the solver alone leaves such frames at the linear interpolation).
@@ -41,7 +41,7 @@ Where the fill comes from (first that applies, per sample)
 Continuity and excursion limit (not in the papers)
 -------------------------------------------------
 A gap still *open* at the window's end (no far end for the solver) is bridged once it
-is ``open_gap_frames(T)`` (W/6) long: left to the low-rank fit, the first frames of a
+is ``open_gap_frames(T, rate)`` (W/6, at most 0.5 s) long: left to the low-rank fit, the first frames of a
 limb gap were extrapolated 15-30 cm astray. A fill (every PCA fill, ``EXCURSION_SOURCES``,
 and the prior's fills of the arms, ``PRIOR_LIMITED_LIMBS``) is then kept within
 ``EXCURSION_GAIN`` (0.35) times the joint's own range of motion over the 1 s before the
@@ -149,6 +149,7 @@ __all__ = [
     "LONG_GAP_MIN",
     "BLACKOUT_MIN_FRAMES",
     "MIN_HISTORY_S",
+    "GAP_SCALE_MAX_S",
 ]
 
 LONG_GAP_FRACTION = 1.0 / 3.0
@@ -157,6 +158,12 @@ OPEN_GAP_FRACTION = 1.0 / 6.0
 """... or this fraction when the run is still open at the window's end (no far end)."""
 LONG_GAP_MIN = 4
 """... but never fewer than this many frames."""
+GAP_SCALE_MAX_S = 3.0
+"""The window length (s) those fractions refer to at most: a joint missing for a second is as
+far beyond the low-rank fit in a 12 s window as in a 3 s one. With the fractions of the whole
+window, a 12 s file window (``streamfix clean --window``) left 1-4 s limb gaps to the fit
+(sensor protocol, dropout: 102 -> 143 mm on the corrupted samples). Serve's (2 s) and the file
+schedule's (3 s) windows are below it."""
 BLACKOUT_MIN_FRAMES = 3
 """Runs of this many (or more) frames with fewer than 3 observed joints are bridged."""
 BLACKOUT_JOINTS = 3
@@ -189,27 +196,32 @@ windows that had long gaps) or 'always' (every window with a missing sample, whe
 skeleton has a prior). See :meth:`BridgingWindowSolver.prior_start`."""
 
 
-def long_gap_frames(n_frames: int) -> int:
-    """Shortest missing run (frames) treated as long in a window of ``n_frames`` frames."""
-    return max(LONG_GAP_MIN, int(np.ceil(n_frames * LONG_GAP_FRACTION)))
+def _gap_scale(n_frames: int, rate_hz: float) -> float:
+    """The window length (frames) the gap fractions apply to: the window, at most ``GAP_SCALE_MAX_S``."""
+    return min(float(n_frames), GAP_SCALE_MAX_S * float(rate_hz))
 
 
-def open_gap_frames(n_frames: int) -> int:
+def long_gap_frames(n_frames: int, rate_hz: float) -> int:
+    """Shortest missing run (frames) treated as long in a window of ``n_frames`` frames at ``rate_hz``."""
+    return max(LONG_GAP_MIN, int(np.ceil(_gap_scale(n_frames, rate_hz) * LONG_GAP_FRACTION)))
+
+
+def open_gap_frames(n_frames: int, rate_hz: float) -> int:
     """Shortest missing run (frames) still open at the window's end that is bridged."""
-    return max(LONG_GAP_MIN, int(np.ceil(n_frames * OPEN_GAP_FRACTION)))
+    return max(LONG_GAP_MIN, int(np.ceil(_gap_scale(n_frames, rate_hz) * OPEN_GAP_FRACTION)))
 
 
-def long_missing_mask(observed: np.ndarray, n_frames: int | None = None) -> np.ndarray:
+def long_missing_mask(observed: np.ndarray, rate_hz: float, n_frames: int | None = None) -> np.ndarray:
     """``(T, J)`` bool: missing samples the solver should not be left to bridge (see module doc)."""
     obs = np.asarray(observed, dtype=bool)
     T = obs.shape[0] if n_frames is None else n_frames
     run = missing_run_lengths(obs)
-    long_ = run >= long_gap_frames(T)
+    long_ = run >= long_gap_frames(T, rate_hz)
     # a run still open at the window's end has no far end for the solver to bridge to:
     # extrapolating a limb from the low-rank fit goes 15-30 cm astray, so it is bridged
     # once it is OPEN_GAP_FRACTION of the window long
     seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
-    long_ |= ~seen_after & (run >= open_gap_frames(T))
+    long_ |= ~seen_after & (run >= open_gap_frames(T, rate_hz))
     black = obs.sum(axis=1) < BLACKOUT_JOINTS
     if black.any():
         brun = missing_run_lengths(~black)
@@ -370,7 +382,7 @@ class BridgingWindowSolver:
         C = len(ctx)
         ext = np.concatenate([ctx, x])
         ext_obs = np.concatenate([np.isfinite(ctx).all(axis=2), obs])
-        ext_long = long_missing_mask(ext_obs, T)
+        ext_long = long_missing_mask(ext_obs, rate_hz, T)
         todo = ext_long[C:]
         if not todo.any():
             return out, done, counts
@@ -622,7 +634,7 @@ class BridgingWindowSolver:
         from ..core.inferred import replacement_weight, tracked_proximity
 
         near = tracked_proximity(conf >= 1.0, rate_hz)
-        cand = inferred & (missing_run_lengths(~inferred) >= open_gap_frames(T)) & (near > 0)
+        cand = inferred & (missing_run_lengths(~inferred) >= open_gap_frames(T, rate_hz)) & (near > 0)
         if not cand.any():
             return x, conf, None
         from ..limbs import limb_groups
@@ -648,7 +660,7 @@ class BridgingWindowSolver:
             kwargs["config"] = config
         if obs.all() or not obs.any():
             return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
-        if not long_missing_mask(obs, len(obs)).any():
+        if not long_missing_mask(obs, rate_hz).any():
             if self.prior_init == "always" and self.prior_ok(x.shape[1], skeleton_name):
                 kwargs["state"], kwargs["init"] = self.prior_start(x, obs, rate_hz, state, init)
             return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
