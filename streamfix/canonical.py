@@ -38,6 +38,7 @@ __all__ = [
     "CANONICAL_BONES",
     "CANONICAL_LIMBS",
     "CANONICAL_MIRROR",
+    "mirrored",
     "CANONICAL_SCALE_BONES",
     "CANONICAL_ROOT",
     "CANONICAL_HIPS",
@@ -85,6 +86,15 @@ CANONICAL_MIRROR = np.array(
     [_CI[n[:-1] + {"l": "r", "r": "l"}[n[-1]]] if n[-2:] in ("_l", "_r") else _CI[n] for n in CANONICAL_JOINTS],
     dtype=np.intp,
 )
+_FLIP_X = np.array([-1.0, 1.0, 1.0])
+
+
+def mirrored(positions: np.ndarray, observed: np.ndarray, mirror: np.ndarray = CANONICAL_MIRROR) -> tuple[np.ndarray, np.ndarray]:
+    """The left/right mirror image of ``(..., T, J, 3)`` metre positions and their ``(..., T, J)``
+    mask: x negated, joint j taken from ``mirror[j]``. Its own inverse."""
+    return positions[..., mirror, :] * _FLIP_X, observed[..., mirror]
+
+
 #: Child joints of the bones used for the body-scale estimate: trunk, shoulders, hips and long limb bones
 #: (hands and feet are short and noisy on depth sensors).
 CANONICAL_SCALE_BONES = tuple(

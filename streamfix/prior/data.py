@@ -14,7 +14,7 @@ sampled at the model rate (30 Hz) with
 * **speed change**: the take is read at ``speed`` times its real pace (linear
   interpolation in time; a sample is observed only if both neighbours are);
 * **rotation about the vertical axis** (y, both Kinect camera space and BVH are y-up);
-* **left/right mirroring**: x negated and left/right joints swapped (``CANONICAL_MIRROR``);
+* **left/right mirroring**: x negated and left/right joints swapped (``streamfix.canonical.mirrored``);
 * **joint dropping** (the paper's partially observed training, Sec. 4.2 and
   Appendix A.3): random joint subsets, whole limbs, the joints a partial layout
   (COCO-17, Kinect v1, BlazePose) lacks, or runs of frames missing per joint. Frames
@@ -29,10 +29,10 @@ import numpy as np
 from streamfix.canonical import (
     CANONICAL_HIPS,
     CANONICAL_LIMBS,
-    CANONICAL_MIRROR,
     CANONICAL_ROOT,
     CANONICAL_SCALE_BONES,
     LAYOUTS,
+    mirrored,
 )
 from streamfix.io.prior_takes import Take, load_take, marker_take  # noqa: F401 (re-exported)
 
@@ -139,8 +139,7 @@ def sample_window(
     if augment:
         pos = pos @ rot_y(rng.uniform(-np.pi, np.pi)).T
         if rng.random() < 0.5:
-            pos = pos[:, CANONICAL_MIRROR] * np.array([-1.0, 1.0, 1.0])
-            mask = mask[:, CANONICAL_MIRROR]
+            pos, mask = mirrored(pos, mask)
     return pos, mask
 
 

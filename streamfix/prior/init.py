@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from streamfix.canonical import mirrored
 from streamfix.core.interpolate import neighbour_observations, observed_mask
 
 from .data import cut_windows, resample_masked
@@ -92,7 +93,6 @@ CHORD_DAMPING = 0.3
 # it knows less well, and their mean errs less (held-out cells, benchmarks/bench_prior.py). The mirror
 # images ride in the same batch, so the cost is one larger onnxruntime call, not two.
 MIRROR_ENSEMBLE = True
-_FLIP_X = np.array([-1.0, 1.0, 1.0])
 
 
 def prior_available(n_joints: int, prior: Prior | None = None, skeleton: str | None = None) -> bool:
@@ -254,8 +254,8 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
     mirror = prior.mirror if MIRROR_ENSEMBLE else None
     n_win = wins.shape[0]
     if mirror is not None:  # the mirror images ride in the same batch (one onnxruntime call)
-        wins = np.concatenate([wins, wins[:, :, mirror] * _FLIP_X])
-        masks = np.concatenate([masks, masks[:, :, mirror]])
+        m_wins, m_masks = mirrored(wins, masks, mirror)
+        wins, masks = np.concatenate([wins, m_wins]), np.concatenate([masks, m_masks])
     if method == "latent":
         from .latent import fit_latent
 
@@ -266,8 +266,8 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
     else:
         rec = prior.reconstruct(wins, masks)
     if mirror is not None:
-        rec = 0.5 * (rec[:n_win] + rec[n_win:][:, :, mirror] * _FLIP_X)
         masks = masks[:n_win]
+        rec = 0.5 * (rec[:n_win] + mirrored(rec[n_win:], masks, mirror)[0])
     # a window that saw too little of the body (fewer than 3 joints ever) says nothing about it
     valid = masks.any(axis=1).sum(axis=1) >= 3
     if not valid.any():

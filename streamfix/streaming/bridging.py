@@ -161,9 +161,9 @@ LONG_GAP_MIN = 4
 GAP_SCALE_MAX_S = 3.0
 """The window length (s) those fractions refer to at most: a joint missing for a second is as
 far beyond the low-rank fit in a 12 s window as in a 3 s one. With the fractions of the whole
-window, a 12 s file window (``streamfix clean --window``) left 1-4 s limb gaps to the fit
-(sensor protocol, dropout: 102 -> 143 mm on the corrupted samples). Serve's (2 s) and the file
-schedule's (3 s) windows are below it."""
+window, a 12 s file window (``streamfix clean --window``) left 1-4 s limb gaps to the fit, which
+placed a walking leg decimetres off (``tests/test_integration_streaming_gaps.py``). Serve's (2 s)
+and the file schedule's (3 s) windows are below it."""
 BLACKOUT_MIN_FRAMES = 3
 """Runs of this many (or more) frames with fewer than 3 observed joints are bridged."""
 BLACKOUT_JOINTS = 3

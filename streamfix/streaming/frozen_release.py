@@ -127,14 +127,15 @@ def frozen_release(
     parents = parents_from_bones(bones, x.shape[1])
     frozen, rigid = frozen_and_rigid(x, inferred, parents, limbs, rate_hz, mirror=mirror)
     release = frozen & (tracked_proximity(conf >= 1.0, rate_hz) > 0)
+    seeds = release
     if released_before is not None and released_before.shape == frozen.shape and released_before.any():
         # a run already judged a guess stays one while it stays rigid, whether or not the
         # twin still bends (the twin test tells a guess from a limb held still at its start)
-        release |= runs_touching(rigid, released_before)
-    # the same within this window: a run released near a tracked sample is released to its end
-    # while it stays rigid, also where it lies farther than TRACKED_NEAR_S from every tracked
-    # sample (a file's window holding a frozen run longer than twice that span handed its
-    # middle back to the sensor's guess, which windows of a stream reach through the memory)
-    if release.any():
-        release |= runs_touching(rigid, release)
+        seeds = release | released_before
+    # and so does a run released here near a tracked sample, to its end, also where it lies
+    # farther than TRACKED_NEAR_S from every tracked sample (a file's window holding a frozen
+    # run longer than twice that span handed its middle back to the sensor's guess, which a
+    # stream's windows reach through the memory)
+    if seeds.any():
+        release = release | runs_touching(rigid, seeds)
     return release
