@@ -68,7 +68,7 @@ class EngineConfig:
     before recovering a level. body_timeout_s: grace period of an absent body.
     fill_drops: synthesise dropped frames. drop_gap_factor: a timestamp gap above this
     many frame periods is a drop. max_fill_s: longer gaps are discontinuities.
-    threaded: solve windows in a worker thread (the service's mode). lookahead_s: the
+    threaded: solve windows in the shared solver pool (the service's mode). lookahead_s: the
     lookahead in seconds instead of frames (rounded at ``rate_hz``; wins if given).
     live_anchor: re-anchor the live path's 'predict' gate on each solved window's newest
     frames when the solution is current (the live output is "corrected by the last

@@ -108,8 +108,9 @@ goes backwards, is late: it is counted (``frames_dropped_late``) and skipped.
 
 Degradation (threaded mode)
 ---------------------------
-:class:`ThreadedStreamEngine` solves windows in a worker thread; ``push`` never waits
-for it. When the solver falls behind (a window is scheduled while another is still
+:class:`ThreadedStreamEngine` solves windows in the process's shared pool of solver
+threads (:mod:`streamfix.streaming.solver_pool`: one FIFO for every engine, a thread per
+CPU); ``push`` never waits for it. When the solver falls behind (a window is scheduled while another is still
 pending, or the last solve took longer than the hop duration ``H / rate_hz``) the
 engine degrades one level at a time: 1 = half the solver iterations, 2 = also twice
 the hop, 3 = quarter iterations and the largest hop (``max_hop``). It recovers a level
@@ -171,6 +172,7 @@ from .histogram import Histogram
 from .live import LivePath
 from .overlap_add import blend_window
 from .solver_api import WindowOutput, WindowSolver
+from .solver_pool import SolverPool, shared_pool
 from .window_job import solve_job
 from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations, with_score_frames
 
@@ -257,10 +259,9 @@ class StreamEngine:
         self._cond = threading.Condition(self._lock)
         self._inflight = 0  # submitted, not finished (threaded)
         self._done_total = 0
-        self._queue = None
-        self._thread = None
+        self._pool: SolverPool | None = None
+        self._closed = False
         if threaded:
-            import queue
             import sys
 
             # The worker holds the GIL for stretches of small numpy calls; Python's default
@@ -273,9 +274,7 @@ class StreamEngine:
             from ..core import kernels
 
             kernels.warm_up()
-            self._queue = queue.Queue()
-            self._thread = threading.Thread(target=self._worker, name="streamfix-solver", daemon=True)
-            self._thread.start()
+            self._pool = shared_pool()  # one FIFO of windows for every engine of the process
 
     # ------------------------------------------------------------------ public API
     def push(self, frame: SkeletonFrame, fill: bool = True) -> list[tuple[str, SkeletonFrame]]:
@@ -357,12 +356,10 @@ class StreamEngine:
         return out
 
     def close(self) -> None:
-        """Stop the worker thread (threaded mode; pending windows are not waited for) and
-        close the window solver if it has resources to free (a solver process)."""
-        if self._thread is not None:
-            self._queue.put(None)
-            self._thread.join(timeout=5.0)
-            self._thread = None
+        """Stop solving this engine's windows (threaded mode; queued ones are not solved and
+        pending windows are not waited for) and close the window solver if it has resources
+        to free (a solver process)."""
+        self._closed = True
         close = getattr(self.solver, "close", None)
         if close is not None:
             close()
@@ -565,7 +562,7 @@ class StreamEngine:
             return
         with self._lock:
             self._inflight += 1
-        self._queue.put(job)
+        self._pool.submit(lambda: self._solve_queued(job))
 
     def _active_bodies(self) -> int:
         """Bodies currently tracked over all streams (>= 1): each owes one window per hop."""
@@ -581,7 +578,7 @@ class StreamEngine:
         return max(1.0, float(sum(startup if b.count < W else 1.0 for b in bodies)))
 
     def _run_job(self, job: Job) -> None:
-        """Solve one window (worker thread in threaded mode); sets the job's result."""
+        """Solve one window (a pool thread in threaded mode); sets the job's result."""
         config = with_max_iterations(self._solver_config, job.iterations, self.solver)
         bridged = solve_job(job, self.solver, self.bones, self.cfg.rate_hz, self.cfg.window, config,
                             pass_history=self._history, skeleton=self.skeleton if self._pass_skeleton else None)
@@ -591,22 +588,20 @@ class StreamEngine:
                     key = "bridge_errors" if src == "errors" else f"joints_bridged_{src}"
                     self.counters[key] = self.counters.get(key, 0) + int(k)
 
-    def _worker(self) -> None:
-        while True:
-            job = self._queue.get()
-            if job is None:
-                return
-            try:
-                if job.status == "pending":
-                    self._run_job(job)
-            except BaseException as exc:  # never leave a job pending: its frames would wait
-                job.error = f"{type(exc).__name__}: {exc}"
-                job.status = "done"
-            finally:
-                with self._cond:
-                    self._inflight -= 1
-                    self._done_total += 1
-                    self._cond.notify_all()
+    def _solve_queued(self, job: Job) -> None:
+        """A queued window, in a thread of the shared pool (:mod:`~streamfix.streaming.solver_pool`):
+        solve it unless it was abandoned or the engine closed; never raises."""
+        try:
+            if job.status == "pending" and not self._closed:
+                self._run_job(job)
+        except BaseException as exc:  # never leave a job pending: its frames would wait
+            job.error = f"{type(exc).__name__}: {exc}"
+            job.status = "done"
+        finally:
+            with self._cond:
+                self._inflight -= 1
+                self._done_total += 1
+                self._cond.notify_all()
 
     # ------------------------------------------------------------------ results
     def _drain(self, st: StreamState, out: list) -> None:
@@ -740,7 +735,7 @@ class StreamEngine:
 
 
 class ThreadedStreamEngine(StreamEngine):
-    """:class:`StreamEngine` whose windows are solved in a worker thread (live service mode)."""
+    """:class:`StreamEngine` whose windows are solved in the shared solver pool (live service mode)."""
 
     def __init__(self, skeleton: Skeleton, config: EngineConfig | None = None, window_solver: WindowSolver | None = None) -> None:
         super().__init__(skeleton, config, window_solver, threaded=True)

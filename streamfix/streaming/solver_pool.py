@@ -1,0 +1,74 @@
+"""One pool of window-solver threads per process, shared by every threaded engine.
+
+``serve`` runs one :class:`~streamfix.streaming.engine.StreamEngine` per input stream. With
+a solver thread per engine, five streams on one core meant five CPU-bound threads
+time-slicing that core and trading the GIL with the input thread: every window took
+about five times its own solve time to finish, and the live path waited behind them.
+One first-in-first-out queue served by as many threads as the process has CPUs solves
+windows in the order they were scheduled (the order their frames fall due), each at
+full speed, and leaves the input thread a single contender for the GIL per core
+(``benchmarks/bench_service.py`` measures both set-ups; ``results/service.json``).
+
+A task is a plain callable; the engine passes one that solves a window and does its own
+book-keeping, and never raises (:meth:`StreamEngine._solve_queued`). The threads are
+daemons: they never keep a process alive, and a process that forks gets a new pool.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import threading
+from typing import Callable
+
+__all__ = ["SolverPool", "shared_pool", "pool_size"]
+
+
+def pool_size() -> int:
+    """Threads for the shared pool: the CPUs this process may run on (at least 1)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity API (macOS, Windows)
+        return max(1, os.cpu_count() or 1)
+
+
+class SolverPool:
+    """``threads`` daemon threads taking tasks from one FIFO queue."""
+
+    def __init__(self, threads: int) -> None:
+        if threads < 1:
+            raise ValueError(f"a solver pool needs at least 1 thread, got {threads}")
+        self.threads = int(threads)
+        self._tasks: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._workers = [
+            threading.Thread(target=self._work, name=f"streamfix-solver-{i}", daemon=True) for i in range(self.threads)
+        ]
+        for worker in self._workers:
+            worker.start()
+
+    def submit(self, task: Callable[[], None]) -> None:
+        """Queue ``task`` behind every task submitted before it."""
+        self._tasks.put(task)
+
+    def pending(self) -> int:
+        """Tasks queued and not yet taken by a thread (approximate)."""
+        return self._tasks.qsize()
+
+    def _work(self) -> None:
+        while True:
+            self._tasks.get()()
+
+
+_POOL: SolverPool | None = None
+_POOL_PID: int | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def shared_pool() -> SolverPool:
+    """The process's pool (:func:`pool_size` threads), started on first use; a forked
+    child (whose parent's threads did not come along) starts its own."""
+    global _POOL, _POOL_PID
+    with _POOL_LOCK:
+        if _POOL is None or _POOL_PID != os.getpid():
+            _POOL = SolverPool(pool_size())
+            _POOL_PID = os.getpid()
+        return _POOL

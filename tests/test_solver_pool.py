@@ -1,0 +1,104 @@
+"""The process-wide pool of window-solver threads (streamfix.streaming.solver_pool)."""
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+
+from streamfix.frames import BodyFrame, SkeletonFrame
+from streamfix.skeletons import KINECT_V2
+from streamfix.streaming import engine as engine_module
+from streamfix.streaming.engine import EngineConfig, StreamEngine, ThreadedStreamEngine, WindowOutput
+from streamfix.streaming.solver_pool import SolverPool, pool_size, shared_pool
+
+NS = 1_000_000_000
+
+
+def test_one_thread_runs_tasks_in_the_order_they_were_submitted():
+    pool = SolverPool(1)
+    gate, done = threading.Event(), threading.Event()
+    order: list[int] = []
+    pool.submit(gate.wait)  # hold the thread while the queue fills
+    for i in range(20):
+        pool.submit(lambda i=i: order.append(i))
+    pool.submit(done.set)
+    gate.set()
+    assert done.wait(10)
+    assert order == list(range(20))
+
+
+def test_the_shared_pool_is_one_per_process_with_a_thread_per_cpu():
+    assert shared_pool() is shared_pool()
+    assert shared_pool().threads == pool_size() == len(os.sched_getaffinity(0))
+
+
+class RecordingSolver:
+    """Identity windows; records the thread each window was solved on."""
+
+    def __init__(self):
+        self.threads: set[str] = set()
+        self.calls = 0
+
+    def __call__(self, positions, confidence, bones, bone_lengths, rate_hz, config=None, state=None, init=None):
+        self.calls += 1
+        self.threads.add(threading.current_thread().name)
+        return WindowOutput(positions.copy(), ~(confidence > 0), None, 1, True)
+
+
+def _frames(n, stream, rng):
+    base = rng.normal(0.0, 0.3, (KINECT_V2.n_joints, 3))
+    for i in range(n):
+        yield SkeletonFrame(stream, i, i * NS // 30, KINECT_V2.name,
+                            [BodyFrame(1, base + 0.01 * np.sin(i / 5.0), np.ones(KINECT_V2.n_joints))])
+
+
+def test_engines_share_the_pool_and_give_the_synchronous_output():
+    """Five threaded engines (serve's engine per stream) use the pool's threads, not one
+    thread each, and each one's clean output equals the synchronous engine's."""
+    cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
+    rng = np.random.default_rng(3)
+    streams = [list(_frames(120, f"s{k}", rng)) for k in range(5)]
+    solvers = [RecordingSolver() for _ in streams]
+    engines = [ThreadedStreamEngine(KINECT_V2, cfg, s) for s in solvers]
+    outs: list[list] = [[] for _ in streams]
+    for i in range(120):  # interleaved, as serve receives them
+        for k, eng in enumerate(engines):
+            outs[k] += eng.push(streams[k][i]) + eng.poll()
+    for k, eng in enumerate(engines):
+        outs[k] += eng.flush()
+        eng.close()
+    names = set().union(*(s.threads for s in solvers))
+    assert names <= {f"streamfix-solver-{i}" for i in range(pool_size())}, names
+    for k, frames in enumerate(streams):
+        sync = StreamEngine(KINECT_V2, cfg, RecordingSolver())
+        expected = [f for kind, f in [x for fr in frames for x in sync.push(fr)] + sync.flush() if kind == "clean"]
+        got = [f for kind, f in outs[k] if kind == "clean"]
+        assert [f.seq for f in got] == [f.seq for f in expected]
+        assert np.array_equal(np.stack([f.bodies[0].positions for f in got]),
+                              np.stack([f.bodies[0].positions for f in expected]))
+
+
+def test_a_closed_engine_s_queued_windows_are_not_solved(monkeypatch):
+    """Windows still queued when their engine closes are skipped, not solved, and the
+    pool goes on with the other engines' windows."""
+    pool = SolverPool(1)
+    monkeypatch.setattr(engine_module, "shared_pool", lambda: pool)
+    gate = threading.Event()
+    pool.submit(gate.wait)  # the pool's one thread is busy: windows queue up
+    cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
+    rng = np.random.default_rng(4)
+    closed_solver, open_solver = RecordingSolver(), RecordingSolver()
+    closing = ThreadedStreamEngine(KINECT_V2, cfg, closed_solver)
+    staying = ThreadedStreamEngine(KINECT_V2, cfg, open_solver)
+    for a, b in zip(_frames(90, "a", rng), _frames(90, "b", rng)):
+        closing.push(a)
+        staying.push(b)
+    assert closing.metrics()["windows_scheduled"] > 0
+    closing.close()
+    gate.set()
+    out = staying.flush(timeout=30)
+    staying.close()
+    assert closed_solver.calls == 0
+    assert open_solver.calls > 0
+    assert sum(kind == "clean" for kind, _ in out) == 90
