@@ -102,3 +102,15 @@ def test_a_closed_engine_s_queued_windows_are_not_solved(monkeypatch):
     assert closed_solver.calls == 0
     assert open_solver.calls > 0
     assert sum(kind == "clean" for kind, _ in out) == 90
+
+
+def test_a_task_that_raises_does_not_stop_the_thread():
+    pool = SolverPool(1)
+    done = threading.Event()
+
+    def broken():
+        raise RuntimeError("boom")
+
+    pool.submit(broken)
+    pool.submit(done.set)
+    assert done.wait(10)

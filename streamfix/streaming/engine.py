@@ -110,9 +110,9 @@ Degradation (threaded mode)
 ---------------------------
 :class:`ThreadedStreamEngine` solves windows in the process's shared pool of solver
 threads (:mod:`streamfix.streaming.solver_pool`: one FIFO for every engine, a thread per
-CPU); ``push`` never waits for it. When the solver falls behind (a window is scheduled while another is still
-pending, or the last solve took longer than the hop duration ``H / rate_hz``) the
-engine degrades one level at a time: 1 = half the solver iterations, 2 = also twice
+CPU); ``push`` never waits for it. When the solver falls behind (a window is scheduled
+while another is still pending, or the last solve took longer than the hop duration
+``H / rate_hz``) the engine degrades one level at a time: 1 = half the solver iterations, 2 = also twice
 the hop, 3 = quarter iterations and the largest hop (``max_hop``). It recovers a level
 after ``recover_after`` consecutive healthy windows. When more than
 ``max_pending_windows`` windows are queued a new window is skipped; when a frame

@@ -10,17 +10,21 @@ full speed, and leaves the input thread a single contender for the GIL per core
 (``benchmarks/bench_service.py`` measures both set-ups; ``results/service.json``).
 
 A task is a plain callable; the engine passes one that solves a window and does its own
-book-keeping, and never raises (:meth:`StreamEngine._solve_queued`). The threads are
+book-keeping, and never raises (:meth:`StreamEngine._solve_queued`); a task that does
+raise is logged and the thread goes on. The threads are
 daemons: they never keep a process alive, and a process that forks gets a new pool.
 """
 from __future__ import annotations
 
+import logging
 import os
 import queue
 import threading
 from typing import Callable
 
 __all__ = ["SolverPool", "shared_pool", "pool_size"]
+
+_log = logging.getLogger(__name__)
 
 
 def pool_size() -> int:
@@ -55,7 +59,11 @@ class SolverPool:
 
     def _work(self) -> None:
         while True:
-            self._tasks.get()()
+            task = self._tasks.get()
+            try:
+                task()
+            except Exception:  # a task must not take a thread of every engine's pool with it
+                _log.exception("window solver pool: a task raised")
 
 
 _POOL: SolverPool | None = None
