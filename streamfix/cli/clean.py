@@ -5,8 +5,9 @@ the same :class:`~streamfix.streaming.engine.StreamEngine` that ``streamfix serv
 runs (synchronous mode, so the result is deterministic and equals serve's ``clean``
 output), and written with :func:`streamfix.io.write_motion` (format from OUT's
 extension). Marker files without bones (C3D), and joint files with a gap of at least a
-third of a window, or of 3 s for longer windows (``streamfix.streaming.bridging.long_gap_frames``, the length the
-streaming solver would bridge itself), first go through the gap filler
+third of a window, or of 3 s for longer windows
+(``streamfix.streaming.bridging.long_gap_frames``, the length the streaming solver would
+bridge itself), first go through the gap filler
 (``streamfix.gapfill.fill_motion_gaps``, Li et al. PCA trained on the take's own
 observed samples plus ``--training`` reference takes): offline the filler sees both
 ends of every gap. Filled samples are flagged recovered in the output (kept by

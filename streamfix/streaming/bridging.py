@@ -41,8 +41,8 @@ Where the fill comes from (first that applies, per sample)
 Continuity and excursion limit (not in the papers)
 -------------------------------------------------
 A gap still *open* at the window's end (no far end for the solver) is bridged once it
-is ``open_gap_frames(T, rate)`` (W/6, at most 0.5 s) long: left to the low-rank fit, the first frames of a
-limb gap were extrapolated 15-30 cm astray. A fill (every PCA fill, ``EXCURSION_SOURCES``,
+is ``open_gap_frames(T, rate)`` (W/6, at most 0.5 s) long: left to the low-rank fit, the
+first frames of a limb gap were extrapolated 15-30 cm astray. A fill (every PCA fill, ``EXCURSION_SOURCES``,
 and the prior's fills of the arms, ``PRIOR_LIMITED_LIMBS``) is then kept within
 ``EXCURSION_GAIN`` (0.35) times the joint's own range of motion over the 1 s before the
 gap (RMS distance from its last observed sample) of the continuity baseline: hold from

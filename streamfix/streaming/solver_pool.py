@@ -53,10 +53,6 @@ class SolverPool:
         """Queue ``task`` behind every task submitted before it."""
         self._tasks.put(task)
 
-    def pending(self) -> int:
-        """Tasks queued and not yet taken by a thread (approximate)."""
-        return self._tasks.qsize()
-
     def _work(self) -> None:
         while True:
             task = self._tasks.get()

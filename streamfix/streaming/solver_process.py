@@ -24,8 +24,9 @@ What is guaranteed
   it is killed if still alive and a fresh child is started at once for the next window.
   Nothing waits forever.
 * ``close()`` (called by ``StreamEngine.close``) stops the child.
-* At most one child per CPU solves at a time (the others' windows wait their turn in the
-  parent, as the worker threads waited for the GIL), and the children run at a lower CPU
+* At most one child per CPU solves at a time: the engine calls the solver from the shared
+  pool's threads, one per CPU (:mod:`streamfix.streaming.solver_pool`; the other windows wait
+  their turn in its queue), and the children run at a lower CPU
   priority (:data:`CHILD_NICE`): on a shared core the input thread's live frames go first,
   the solves take what is left.
 
@@ -198,24 +199,6 @@ class _Child:
         self.conn.close()
 
 
-_slots_lock = threading.Lock()
-_slots: threading.Semaphore | None = None
-
-
-def _solve_slots() -> threading.Semaphore:
-    """At most one solving child per CPU this process may run on (made on first use).
-
-    Children that outnumber the cores would share them round-robin, so every window would
-    finish only as late as the last of them (5 windows at once on one core: each took 5x its
-    compute), which the engine reads as overload and degrades for; one at a time, a window
-    takes its compute time after those queued before it, as in the worker thread."""
-    global _slots
-    with _slots_lock:
-        if _slots is None:
-            _slots = threading.Semaphore(max(1, len(os.sched_getaffinity(0))))
-        return _slots
-
-
 _spare_lock = threading.Lock()
 _spare: _Child | None = None
 
@@ -301,8 +284,7 @@ class ProcessWindowSolver:
         child = self._child
         try:
             child.wait_ready(self.startup_timeout_s)  # a restarted child may still be loading
-            with _solve_slots():
-                return child.solve((positions, confidence, bones, bone_lengths, rate_hz), kwargs, self.timeout_s)
+            return child.solve((positions, confidence, bones, bone_lengths, rate_hz), kwargs, self.timeout_s)
         except SolverProcessError as exc:
             if exc.child_lost:
                 self._restart(child)
