@@ -121,7 +121,8 @@ def test_handover_frames_are_where_the_engine_blend_passes_to_a_newer_window(met
     from streamfix.motion import Motion
     from streamfix.skeletons import KINECT_V2
 
-    T = 300  # at least four hand-overs on the file schedule (a window every 40 frames)
+    cfg = engine_config(method, 30.0)
+    T = cfg.window + cfg.lookahead + 5 * cfg.hop  # at least four hand-overs on either schedule
     m = Motion(np.zeros((T, 25, 3)), np.ones((T, 25)), np.arange(T) / 30.0, 30.0, KINECT_V2)
     count = [0]
 
@@ -129,7 +130,6 @@ def test_handover_frames_are_where_the_engine_blend_passes_to_a_newer_window(met
         count[0] += 1
         return WindowOutput(np.full(np.shape(positions), float(count[0])), np.zeros(np.shape(positions)[:2], dtype=bool))
 
-    cfg = engine_config(method, 30.0)
     out, _ = clean_motion(m, cfg, window_solver=solver)
     y = out.positions[:, 0, 0]
     # a frame blended from two windows is nearer the one with the larger weight (an even

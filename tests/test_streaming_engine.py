@@ -559,7 +559,10 @@ def test_a_released_sample_drops_what_windows_that_kept_it_blended(kinect, sched
     the hand-over frames come out between the input and the release."""
     x = kinect.positions
     assert len(np.unique(x[:, 0, 0])) == len(x)  # a window's last frame tells where it ends
-    cfg = EngineConfig(rate_hz=30.0) if schedule == "serve" else EngineConfig.for_files(30.0)
+    # the file schedule's shape (the lookahead most of the window, no start-up windows) at 3 s
+    # windows: the take is one 10 s window
+    files = EngineConfig.for_files(30.0, window=90, hop=40, lookahead=60)
+    cfg = EngineConfig(rate_hz=30.0) if schedule == "serve" else files
     start, joint = 60, 5
     got = {}
     for report in (True, False):

@@ -111,15 +111,15 @@ def test_offline_clean_equals_engine_clean_when_a_window_fails(kinect):
 
 
 def test_file_schedule_solves_fewer_windows_and_keeps_its_settings_consistent(kinect):
-    """EngineConfig.for_files: 3 s windows every 4/3 s, 2 s lookahead, 0.5 s crossfade at any
-    rate, clamped to what the window allows; the offline clean on it solves half of serve's
+    """EngineConfig.for_files: 10 s windows every 8 s, 9 s lookahead, 0.5 s crossfade at any
+    rate, clamped to what the window allows; the offline clean on it solves a fraction of serve's
     windows; an unknown schedule name is refused."""
     from streamfix.streaming.config import schedule_config
 
     cfg = EngineConfig.for_files(30.0)
-    assert (cfg.window, cfg.hop, cfg.lookahead, cfg.handover_s) == (90, 40, 60, 0.5)
+    assert (cfg.window, cfg.hop, cfg.lookahead, cfg.handover_s) == (300, 240, 270, 0.5)
     fast = EngineConfig.for_files(120.0)
-    assert (fast.window, fast.hop, fast.lookahead) == (360, 160, 240)
+    assert (fast.window, fast.hop, fast.lookahead) == (1200, 960, 1080)
     short = EngineConfig.for_files(30.0, window=30)
     assert short.lookahead == 29 and short.hop == 30
     assert EngineConfig.for_files(30.0, lookahead_s=0.5).hop == 16  # hop <= lookahead + 1

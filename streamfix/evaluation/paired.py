@@ -25,7 +25,8 @@ scores the output against the reference, per dataset and per body region (``all`
      lag_frames_median,           #   reference, pooled over takes / median of per-take argmax
      seam_ratio,                  # mean |second difference| on frames next to an engine window
                                   #   hand-over / on the other frames within a hop of them
-                                  #   (every method: ~1 = no seam)
+                                  #   (every method: ~1 = no seam; None when no take had one)
+     seam_frames,                 # joint-frames next to a hand-over behind seam_ratio
      abe_m: None, time_s}
 
 Aggregation over takes: means are frame-weighted (pooled over joint-frames), p95 is over
@@ -198,6 +199,7 @@ def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
             "lag_frames": int(np.nanargmax(xc) - MAX_LAG_FRAMES) if xc is not None else None,
             "lag_frames_median": float(np.median(lags)) if lags else None,
             "seam_ratio": _ratio(s["seam_sum"] / s["seam_n"], other) if s["seam_n"] and other else None,
+            "seam_frames": s["seam_n"],  # joint-frames next to a hand-over (0: every take was one window)
             "time_s": s["time_s"],
         })
     return records

@@ -21,16 +21,22 @@ DEFAULT_LOOKAHEAD_S = 0.5  # L: 15 frames at 30 Hz (the issue's bound on clean l
 DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
 
 # The schedule for files (EngineConfig.for_files): nobody waits for a frame of a file, so
-# each frame can take its value from windows that hold it near their middle instead of
-# near their newest edge, and longer windows see more of the body's motion per solve (the
-# robust fits, the low-rank model and the bone lengths have more frames to go on) while
-# fewer solves cover each frame (W / H = 2.25 instead of serve's 6). Chosen over 2 s and
-# 4 s windows by bench_paired, bench_sensor and bench_accuracy (4 s lost the sensor
-# protocol's frozen-limb bar); what each scores is in benchmarks/results/.
-FILE_WINDOW_S = 3.0  # W: 90 frames at 30 Hz
-FILE_HOP_S = 4.0 / 3.0  # H: 40 frames at 30 Hz
-FILE_LOOKAHEAD_S = 2.0  # L: 60 frames at 30 Hz: a frame is 0.7-2 s from its windows' newest frame
-FILE_HANDOVER_S = 0.5  # crossfade: consecutive windows share 1.67 s; the fade is where they hand over
+# each frame takes its value from windows that hold it well inside, and long windows see
+# more of the body's motion per solve (the robust fits, the low-rank model and the bone
+# lengths have more frames to go on) while fewer solves cover each frame (W / H = 1.25
+# instead of serve's 6: cleaning a file costs about half what 3 s windows every 4/3 s
+# did; a repetition of an exercise is one window). Two consecutive windows share
+# K = L + 1 - H frames, the older window's newest and the newer window's oldest used ones
+# (W - L - 1 frames into it); the crossfade (FILE_HANDOVER_S) lies at the older window's
+# end of them, so where they hand over each window has at least 16 frames (0.5 s) beyond
+# (with 10 s windows every 9 s the newer window had none and the hand-overs showed as a
+# seam; 3 s windows every 2 s, whose K was 1 frame, showed one too). Chosen over 3 s
+# windows every 4/3 s, 6 s and 8 s windows by bench_paired, bench_sensor and
+# bench_accuracy; what each scores is in benchmarks/results/.
+FILE_WINDOW_S = 10.0  # W: 300 frames at 30 Hz
+FILE_HOP_S = 8.0  # H: 240 frames at 30 Hz
+FILE_LOOKAHEAD_S = 9.0  # L: 270 frames at 30 Hz: a frame is 0.5-9 s from its windows' newest frame
+FILE_HANDOVER_S = 0.5  # crossfade within the K = 31 frames (1 s) consecutive windows share
 
 
 def _frames_from_seconds(rate_hz: float, window: int | None, lookahead: int | None, hop: int | None,
@@ -84,7 +90,7 @@ class EngineConfig:
     consecutive windows share; see :func:`streamfix.streaming.blending.handover_weights`).
     startup_hop: the hop (frames) while a body's first ``window`` frames arrive
     (:func:`streamfix.streaming.blending.next_window_end`); None = ``max(1, hop // 2)``, at most
-    ``hop`` (= no extra windows: the file schedule, whose 2 s lookahead gains nothing from them).
+    ``hop`` (= no extra windows: the file schedule, whose 9 s lookahead gains nothing from them).
     output_smooth_s: half-width (s) of the binomial whose twicing smooths the blended clean
     output where windows found sensor noise (``h`` frames at ``rate_hz`` give a ``4 h + 1``
     tap kernel, :func:`streamfix.core.filters.twiced_binomial_taps`; 0 = none): the
