@@ -148,7 +148,7 @@ from ..frames import BodyFrame, SkeletonFrame, check_frame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
 from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end
-from .bone_lengths import LengthSources, length_sources, sample_clean_bones
+from .bone_lengths import LengthSources, length_sources
 from .bodies import (  # the constants are re-exported: the engine's documented settings
     BONE_HISTORY_S,  # noqa: F401
     BONE_MEMORY_S,  # noqa: F401
@@ -168,6 +168,7 @@ from .bodies import (  # the constants are re-exported: the engine's documented 
 )
 from .config import DEFAULT_HOP_S, DEFAULT_LOOKAHEAD_S, DEFAULT_WINDOW_S, EngineConfig  # noqa: F401
 from .degradation import Degradation
+from .finalise import final_end, finalise_frames
 from .histogram import Histogram
 from .live import LivePath
 from .overlap_add import blend_window
@@ -260,6 +261,11 @@ class StreamEngine:
         self._inflight = 0  # submitted, not finished (threaded)
         self._done_total = 0
         self._pool: SolverPool | None = None
+        self._learn_lengths = bool(len(self.bones)) and self._fixed_lengths is None
+        # offline (synchronous, no live topic): nothing waits for a clean frame, so frames are
+        # finalised and emitted in runs, when a window is due and at the end, not one per push
+        # (the same values: every window still sees the state a per-push drain would leave)
+        self._batch_clean = not threaded and not self.cfg.live_output
         self._closed = False
         if threaded:
             import sys
@@ -298,6 +304,8 @@ class StreamEngine:
             if gap_ns > self.cfg.drop_gap_factor * self.period_ns:
                 if gap_ns > self.cfg.max_fill_s * 1e9:
                     self.counters["gaps_not_filled"] += 1
+                    if self._batch_clean:
+                        self._drain(st, out)  # what each push would have finalised, first
                     self._end_stream_bodies(st, out)
                 else:
                     n_fill = max(1, int(round(gap_ns / self.period_ns)) - 1)
@@ -323,6 +331,8 @@ class StreamEngine:
         """
         out: list[tuple[str, SkeletonFrame]] = []
         for st in self.streams.values():
+            if self._batch_clean:
+                self._drain(st, out)  # what each push would have finalised, first
             for body in list(st.bodies.values()):
                 self._begin_end(st, body)
         if self.threaded:
@@ -430,6 +440,10 @@ class StreamEngine:
             inputs = {b.body_id: b for b in frame.bodies}
             present_ids = [b.body_id for b in frame.bodies]
             st.last_present = present_ids
+        # drain after this frame: always, or offline only when a window is due or a body leaves
+        drain = not self._batch_clean or self._due(st, present_ids)
+        if drain and self._batch_clean:
+            self._drain(st, out)  # first what a drain after every push would have left
         pend = PendingFrame(seq, t_ns, frame is None, present_ids)
         st.pending[g] = pend
         if not present_ids:
@@ -515,7 +529,20 @@ class StreamEngine:
             if body.absent > self._timeout:
                 self.counters["bodies_timed_out"] += 1
                 self._begin_end(st, body)
-        self._drain(st, out)
+        if drain:
+            self._drain(st, out)
+
+    def _due(self, st: StreamState, present_ids: list[int]) -> bool:
+        """Whether the next frame of ``st`` (bodies ``present_ids``) completes a body's window,
+        times a body out, or finds a body leaving: work a drain must see the state before."""
+        if st.ending:
+            return True
+        for bid, body in st.bodies.items():
+            if body.count + 1 == body.next_end:
+                return True
+            if bid not in present_ids and body.absent + 1 > self._timeout:
+                return True
+        return False
 
     def _robust_lengths(self, body: Body) -> np.ndarray | None:
         """``(B,)`` bone lengths (m) for the solver and the live projection, now."""
@@ -645,53 +672,18 @@ class StreamEngine:
                     body.live_path.anchor(job.result_pos[-3:])
 
     def _finalise(self, st: StreamState, body: Body) -> None:
-        """Move the body's frames whose clean value can no longer change to the stream."""
-        L = self.cfg.lookahead
-        while body.final_upto < body.count:
-            n = body.final_upto
-            head = body.jobs[0] if body.jobs else None
-            if body.ending:
-                if head is not None:
-                    break
-            else:
-                if body.count < n + L + 1:
-                    break
-                if head is not None and head.end <= n + L + 1:
-                    break
-                if body.last_processed_end <= n:
-                    break  # degraded hop: wait for the window that covers n
-            k = n % body.cap
-            if body.present[k]:
-                den = body.den[k]
-                have = den > 0
-                value = body.smooth[k] if body.smooth_for[k] == n else body.mean[k]
-                if have.all():  # every joint has a window value (the usual case): no masking
-                    pos = value.copy()
-                    rec = ~body.valid[k] | (body.recw[k] / den > 0.5)
-                else:  # no solved window gave these joints a value: the live one
-                    self.counters["joints_live_fallback"] += int((~have).sum())
-                    pos = np.where(have[:, None], value, body.live[k])
-                    recw = np.divide(body.recw[k], den, out=np.zeros_like(den), where=have)
-                    rec = ~body.valid[k] | ~have | (recw > 0.5)
-                    rec = np.where(have, rec, body.live_rec[k] | ~body.valid[k])
-                g = body.g0 + n
-                pend = st.pending.get(g)
-                if pend is not None:
-                    conf = output_confidence(pos, body.conf[k], rec)
-                    pend.slots[body.body_id] = BodyFrame(body.body_id, pos, conf, rec)
-                    pend.missing -= 1
-                    self.counters["joints_recovered"] += int(rec.sum())
-                    if len(self.bones) and self._fixed_lengths is None:
-                        est = sample_clean_bones(body, pos, self.bones, self.cfg.hop)
-                        if est is not None and self.cfg.live_output:
-                            body.live_path.set_bone_lengths(est)
-                if self._history:  # observed samples of the clean output; row = timeline frame
-                    body.hist[body.hist_n % len(body.hist)] = np.where(rec[:, None], np.nan, pos)
-            elif self._history:  # absent: a NaN row keeps the history aligned with the timeline
-                body.hist[body.hist_n % len(body.hist)] = np.nan
-            if self._history:
-                body.hist_n += 1
-            body.final_upto += 1
+        """Move the body's frames whose clean value can no longer change to the stream
+        (:mod:`~streamfix.streaming.finalise`: one array pass over the run)."""
+        end = final_end(body, self.cfg.lookahead)
+        if end <= body.final_upto:
+            return
+        recovered, fallback = finalise_frames(
+            st, body, end, self.bones, self.cfg.hop, learn_lengths=self._learn_lengths,
+            live_output=self.cfg.live_output, history=self._history,
+        )
+        self.counters["joints_recovered"] += recovered
+        if fallback:
+            self.counters["joints_live_fallback"] += fallback
 
     def _emit(self, st: StreamState, out: list) -> None:
         while True:
