@@ -154,3 +154,70 @@ def test_clean_motion_refuses_when_every_window_fails(kinect):
     assert m["first_solver_error"] == "ImportError: No module named 'pywt'"
     with pytest.raises(WindowSolverError, match="every window solve failed.*pywt"):
         clean_motion(motion, window_solver=broken)
+
+
+@pytest.mark.parametrize("schedule", ["file", "serve"])
+def test_push_many_gives_what_push_gives_frame_by_frame(kinect, schedule):
+    """The offline engine's runs of frames (push_many: ring and body rows as arrays, clean
+    frames finalised in runs) emit the frames push() emits one by one, and the engine
+    with the live path emits the same clean frames, through dropped frames, a
+    discontinuity, NaN joints, a late frame, a second body for a while, and a frame it
+    refuses (raised after the frames before it, which are kept)."""
+    from dataclasses import replace as dc_replace
+
+    from streamfix.frames import BodyFrame
+
+    cfg = (EngineConfig.for_files(kinect.rate_hz, window=90, hop=40, lookahead=60) if schedule == "file"
+           else EngineConfig(rate_hz=kinect.rate_hz))
+    period = int(round(1e9 / kinect.rate_hz))
+    once = list(motion_frames(kinect))
+    span = int(once[-1].sensor_time_ns) - int(once[0].sensor_time_ns) + period
+    frames = [dc_replace(f, seq=k * len(once) + int(f.seq), sensor_time_ns=int(f.sensor_time_ns) + k * span)
+              for k in range(3) for f in once]  # the take three times: every ring row is reused
+    shift = np.zeros(len(frames), dtype=np.int64)
+    shift[40:] += 2 * period   # two dropped frames
+    shift[90:] += 5_000_000_000  # a 5 s discontinuity
+    out = []
+    for i, f in enumerate(frames):
+        f = dc_replace(f, sensor_time_ns=int(f.sensor_time_ns) + int(shift[i]))
+        if 20 <= i < 25:  # NaN joints
+            p = np.array(f.bodies[0].positions)
+            p[:, 3:6] = np.nan
+            f = dc_replace(f, bodies=[BodyFrame(0, p, f.bodies[0].confidence)])
+        if 60 <= i < 70:  # a second body for a while
+            f = dc_replace(f, bodies=[f.bodies[0], BodyFrame(1, f.bodies[0].positions + 1.0, f.bodies[0].confidence)])
+        out.append(f)
+        if i == 50:
+            out.append(f)  # late: a repeated seq is dropped
+    bad = dc_replace(out[120], bodies=[BodyFrame(0, out[120].bodies[0].positions[:5], out[120].bodies[0].confidence[:5])])
+    stream = out[:120] + [bad] + out[120:]
+
+    def run(live: bool, many: bool):
+        engine = StreamEngine(kinect.skeleton, dc_replace(cfg, live_output=live))
+        got = []
+        if many:
+            with pytest.raises(ValueError, match="joint"):
+                engine.push_many(stream, got)  # stops at the bad frame, the outputs before it kept
+            engine.push_many(stream[121:], got)
+        else:
+            for f in stream:
+                try:
+                    got += engine.push(f)
+                except ValueError:
+                    pass
+        got += engine.flush()
+        clean = [f for kind, f in got if kind == "clean"]
+        return clean, engine.counters
+
+    reference, counters = run(live=False, many=False)
+    assert counters["frames_dropped_late"] == 1 and counters["frames_rejected"] == 1 and counters["gaps_not_filled"] == 1
+    for live, many in ((False, True), (True, False)):
+        clean, c = run(live, many)
+        assert [(f.seq, f.sensor_time_ns, [b.body_id for b in f.bodies]) for f in clean] == \
+            [(f.seq, f.sensor_time_ns, [b.body_id for b in f.bodies]) for f in reference]
+        for a, b in zip(clean, reference):
+            for x, y in zip(a.bodies, b.bodies):
+                np.testing.assert_array_equal(x.positions, y.positions)
+                np.testing.assert_array_equal(x.confidence, y.confidence)
+                np.testing.assert_array_equal(x.recovered, y.recovered)
+        assert c["joints_recovered"] == counters["joints_recovered"] and c["clean_out"] == counters["clean_out"]

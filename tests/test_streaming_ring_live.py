@@ -126,3 +126,25 @@ def test_clean_within_125_percent_of_offline_whole_sequence(cmu30, fraction):
     whole = solver(noisy, np.ones(noisy.shape[:2]), cmu30.skeleton.bone_array, None, 30.0).positions
     assert aje(streamed.positions, truth) <= 1.25 * aje(whole, truth)
     assert aje(streamed.positions, truth) < 0.25 * aje(noisy, truth)  # and it did clean
+
+
+@pytest.mark.parametrize("before, n", [(0, 4), (3, 7), (8, 5), (6, 10), (2, 23)])
+def test_ring_push_many_writes_the_rows_push_writes(before, n):
+    """A run of frames pushed at once, wrapping the storage or longer than the ring, with
+    NaN and zero-confidence joints, leaves the ring as pushing them one by one does."""
+    W, J = 10, 4
+    rng = np.random.default_rng(before * 100 + n)
+    pos = rng.normal(size=(before + n, J, 3))
+    conf = rng.uniform(0.2, 1.0, size=(before + n, J))
+    pos[rng.random((before + n, J)) < 0.2] = np.nan
+    conf[rng.random((before + n, J)) < 0.2] = 0.0
+    times = np.arange(before + n, dtype=np.int64) * 33_000_000
+    one, many = RingBuffer(W, J), RingBuffer(W, J)
+    for i in range(before + n):
+        one.push(pos[i], conf[i], int(times[i]))
+    for i in range(before):
+        many.push(pos[i], conf[i], int(times[i]))
+    many.push_many(pos[before:], conf[before:], times[before:])
+    assert many.count == one.count
+    for name in ("_pos", "_conf", "_valid", "_time"):
+        np.testing.assert_array_equal(getattr(many, name), getattr(one, name), err_msg=name)

@@ -139,7 +139,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -322,6 +322,29 @@ class StreamEngine:
                     self._drain(other, out)
         return out
 
+    def push_many(self, frames: Sequence[SkeletonFrame],
+                  out: list[tuple[str, SkeletonFrame]] | None = None) -> list[tuple[str, SkeletonFrame]]:
+        """Feed frames in order: the outputs of :meth:`push` on each, appended to ``out``
+        (a new list if None), which is returned.
+
+        Offline (synchronous, no live output), runs of plain frames (the one body of an
+        existing stream, in order, no drop to fill, no window due) are written into the
+        ring and the body's rows as arrays, not one by one; anything else goes through
+        :meth:`push`. A frame :meth:`push` would refuse raises the same error after the
+        frames before it, whose outputs are then in ``out`` (pass a list to keep them).
+        """
+        out = [] if out is None else out
+        i, n = 0, len(frames)
+        while i < n:
+            run = self._plain_run(frames, i) if self._batch_clean else 0
+            if run:
+                self._push_run(frames[i:i + run])
+                i += run
+            else:
+                out.extend(self.push(frames[i]))
+                i += 1
+        return out
+
     def flush(self, timeout: float | None = 10.0) -> list[tuple[str, SkeletonFrame]]:
         """Finalise every body of every stream and emit all pending clean frames.
 
@@ -427,6 +450,65 @@ class StreamEngine:
         return st.last_time_ns is not None and int(frame.sensor_time_ns) < st.last_time_ns
 
     # ------------------------------------------------------------------ per frame
+    def _plain_run(self, frames: Sequence[SkeletonFrame], i: int) -> int:
+        """How many frames from ``frames[i]`` on :meth:`_push_run` may take (0: none): frames
+        of one existing stream whose only body, already tracked, is each frame's only body,
+        valid, in order, with no drop to fill and no window due."""
+        first = frames[i]
+        st = self.streams.get(first.stream_id)
+        if st is None or st.ending or len(st.bodies) != 1:
+            return 0
+        (bid, body), = st.bodies.items()
+        seq, t_ns = st.last_in_seq, st.last_time_ns
+        limit = body.next_end - body.count - 1  # the frame that completes a window: push()
+        max_gap = self.cfg.drop_gap_factor * self.period_ns if self.cfg.fill_drops else np.inf
+        run = 0
+        for frame in frames[i:i + max(0, limit)]:
+            if frame.stream_id != st.stream_id or len(frame.bodies) != 1 or frame.bodies[0].body_id != bid:
+                break
+            if (seq is not None and int(frame.seq) <= seq) or (t_ns is not None and
+                                                               not 0 <= int(frame.sensor_time_ns) - t_ns <= max_gap):
+                break
+            try:
+                check_frame(frame, self.skeleton)
+            except ValueError:
+                break  # push() refuses it, counted
+            seq, t_ns = int(frame.seq), int(frame.sensor_time_ns)
+            run += 1
+        return run
+
+    def _push_run(self, frames: Sequence[SkeletonFrame]) -> None:
+        """:meth:`_advance` for a run of plain frames (:meth:`_plain_run`), as arrays: the same
+        ring rows, body rows and pending frames, and no drain (none is due within the run)."""
+        st = self.streams[frames[0].stream_id]
+        (bid, body), = st.bodies.items()
+        n = len(frames)
+        positions = np.stack([np.asarray(f.bodies[0].positions, dtype=np.float64) for f in frames])
+        confidence = np.stack([np.asarray(f.bodies[0].confidence, dtype=np.float64) for f in frames])
+        times = np.array([int(f.sensor_time_ns) for f in frames], dtype=np.int64)
+        self.counters["frames_in"] += n
+        for f in frames:
+            st.g += 1
+            st.pending[st.g] = PendingFrame(st.seq0 + st.g, int(f.sensor_time_ns), False, [bid])
+        st.last_present = [bid]
+        st.last_in_seq, st.last_time_ns = int(frames[-1].seq), int(times[-1])
+        n0 = body.count
+        body.ring.push_many(positions, confidence, times)
+        valid = (confidence > 0) & np.isfinite(positions).all(axis=2)  # as the ring blanks them
+        rows = (n0 + np.arange(n)) % body.cap
+        for acc in (body.mean, body.den, body.recw, body.noise):
+            acc[rows] = 0.0
+        body.released_only[rows] = False
+        body.live[rows] = np.nan  # offline: no live path
+        body.live_rec[rows] = True
+        body.conf[rows] = np.where(valid, confidence, 0.0)
+        body.raw[rows] = np.where(valid[..., None], positions, np.nan)
+        body.valid[rows] = valid
+        body.present[rows] = True
+        body.absent = 0
+        body.last_present = n0 + n - 1
+        body.count = n0 + n
+
     def _advance(self, st: StreamState, frame: SkeletonFrame | None, t_ns: int, out: list) -> None:
         """Add one stream frame (``frame`` None = a synthesised dropped frame)."""
         st.g += 1

@@ -117,10 +117,17 @@ def finalise_frames(
     if history:  # observed samples of the clean output; row = timeline frame (absent: NaN)
         cap = len(body.hist)
         skip = max(0, count - cap)  # a run longer than the history: only its newest frames stay
-        block = np.full((count,) + body.hist.shape[1:], np.nan)
-        if k_p is not None:
-            block[present] = np.where(rec[..., None], np.nan, pos)
-        body.hist[(body.hist_n + np.arange(skip, count)) % cap] = block[skip:]
+        if k_p is rows:  # every frame present
+            block = np.where(rec[..., None], np.nan, pos)
+        else:
+            block = np.full((count,) + body.hist.shape[1:], np.nan)
+            if k_p is not None:
+                block[present] = np.where(rec[..., None], np.nan, pos)
+        h0 = (body.hist_n + skip) % cap
+        if h0 + count - skip <= cap:
+            body.hist[h0:h0 + count - skip] = block[skip:]
+        else:
+            body.hist[(body.hist_n + np.arange(skip, count)) % cap] = block[skip:]
         body.hist_n += count
     body.final_upto = end
     return recovered, fallback

@@ -87,6 +87,31 @@ class RingBuffer:
         self.count += 1
         return self.count - 1
 
+    def push_many(self, positions: np.ndarray, confidence: np.ndarray, time_ns: np.ndarray) -> None:
+        """Append ``n`` frames at once (``(n, J, 3)``, ``(n, J)``, ``(n,)``): the same rows as
+        :meth:`push` on each in turn."""
+        n = len(positions)
+        cap = self.capacity
+        if n > cap:  # the older ones would be overwritten within this call
+            self.count += n - cap
+            positions, confidence, time_ns = positions[n - cap:], confidence[n - cap:], time_ns[n - cap:]
+            n = cap
+        if n == 0:
+            return
+        valid = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
+        pos = np.where(valid[..., None], positions, np.nan)
+        conf = np.where(valid, confidence, 0.0)
+        first = self.count % cap
+        for lo in (first, first + cap):  # each frame twice (module doc); a run may wrap past 2 cap
+            head = min(n, 2 * cap - lo)
+            self._pos[lo:lo + head], self._conf[lo:lo + head] = pos[:head], conf[:head]
+            self._valid[lo:lo + head], self._time[lo:lo + head] = valid[:head], time_ns[:head]
+            if head < n:  # the rest wraps to the start of the storage
+                rest = n - head
+                self._pos[:rest], self._conf[:rest] = pos[head:], conf[head:]
+                self._valid[:rest], self._time[:rest] = valid[head:], time_ns[head:]
+        self.count += n
+
     def push_missing(self, time_ns: int) -> int:
         """Append a frame in which every joint is missing (absent body, dropped frame)."""
         i = self.count % self.capacity
