@@ -80,11 +80,13 @@ def hop_phase(ordinal: int, hop: int) -> int:
     Bodies that appear together would otherwise all schedule their windows on the same
     frame, and the worker solves them one after another: with 12 bodies the last
     waited 12 solves (clean p99 ~250 ms beyond the lookahead in bench_service). The
-    golden-ratio sequence spreads any number of bodies evenly over the hop. The
-    first body gets 0, so a single body's output is unchanged. Only the second window
+    golden-ratio sequence spreads any number of bodies evenly over the hop, rounded to
+    the nearest frame: at serve's 10-frame hop the six bodies a Kinect tracks then get six
+    phases (rounding down gave the sixth the first one's, so their windows queued
+    together). The first body gets 0, so a single body's output is unchanged. Only the second window
     comes early (its hop is shorter), so every frame is still covered (H <= L + 1).
     """
-    return int(((ordinal * 0.6180339887498949) % 1.0) * hop)
+    return int(((ordinal * 0.6180339887498949) % 1.0) * hop + 0.5) % hop
 
 
 class Body:
