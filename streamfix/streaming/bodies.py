@@ -27,8 +27,8 @@ BONE_OWN_SUPPORT_S = 1.0  # tracked samples a bone needs to keep its own length 
 BONE_PEAK_SHARE = 0.1  # share of a bone's raw samples that must lie within BONE_SUPPORT_TOL_M of its mode
 GUESSED_SHARE_POOLED = (0.01, 0.05)  # share of a bone's samples with an inferred end: from the first, pooling
 # with its mirror begins; from the second, the pair shares one length (symmetric_lengths). Full at 5 %:
-# a 7 s Kinect take whose left hand was guessed in 12 frames (6 %) kept 43 % of the hands' 2 cm
-# difference at (0.02, 0.1), the guessed hand 19 % off its mirror once the take was one window
+# with (0.02, 0.1) a hand the sensor guessed for a few percent of a short take kept most of the
+# hands' difference, and ended far off its mirror (bench_accuracy's inferred-limb bar)
 HISTORY_S = 10.0
 """Seconds of a body's clean output (observed samples; recovered ones NaN) kept for
 solvers with ``wants_history`` (PCA gap filling trains on it)."""

@@ -493,16 +493,15 @@ class StreamEngine:
         st.last_present = [bid]
         st.last_in_seq, st.last_time_ns = int(frames[-1].seq), int(times[-1])
         n0 = body.count
-        body.ring.push_many(positions, confidence, times)
-        valid = (confidence > 0) & np.isfinite(positions).all(axis=2)  # as the ring blanks them
+        raw, conf, valid = body.ring.push_many(positions, confidence, times)
         rows = (n0 + np.arange(n)) % body.cap
         for acc in (body.mean, body.den, body.recw, body.noise):
             acc[rows] = 0.0
         body.released_only[rows] = False
         body.live[rows] = np.nan  # offline: no live path
         body.live_rec[rows] = True
-        body.conf[rows] = np.where(valid, confidence, 0.0)
-        body.raw[rows] = np.where(valid[..., None], positions, np.nan)
+        body.conf[rows] = conf
+        body.raw[rows] = raw
         body.valid[rows] = valid
         body.present[rows] = True
         body.absent = 0

@@ -6,8 +6,8 @@ are final; :func:`finalise_frames` turns that run of ring rows into output value
 recovered flags and confidences with a few array operations for the whole run, then hands
 each frame to the stream's pending frames. Why a run: the offline engine finalises a
 window's worth of frames at once (:class:`~streamfix.streaming.engine.StreamEngine`
-without live output), where frame-by-frame numpy calls were a sixth of a file's cleaning
-time. The values do not depend on how the frames are grouped into runs.
+without live output), where numpy calls frame by frame were a large part of a file's
+cleaning time. The values do not depend on how the frames are grouped into runs.
 """
 from __future__ import annotations
 

@@ -87,20 +87,23 @@ class RingBuffer:
         self.count += 1
         return self.count - 1
 
-    def push_many(self, positions: np.ndarray, confidence: np.ndarray, time_ns: np.ndarray) -> None:
+    def push_many(self, positions: np.ndarray, confidence: np.ndarray,
+                  time_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Append ``n`` frames at once (``(n, J, 3)``, ``(n, J)``, ``(n,)``): the same rows as
-        :meth:`push` on each in turn."""
+        :meth:`push` on each in turn. Returns the frames as stored (positions NaN and
+        confidence 0 where missing, and the valid mask), all ``n`` of them."""
+        valid = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
+        pos = np.where(valid[..., None], positions, np.nan)
+        conf = np.where(valid, confidence, 0.0)
+        stored = (pos, conf, valid)
         n = len(positions)
         cap = self.capacity
         if n > cap:  # the older ones would be overwritten within this call
             self.count += n - cap
-            positions, confidence, time_ns = positions[n - cap:], confidence[n - cap:], time_ns[n - cap:]
+            pos, conf, valid, time_ns = pos[n - cap:], conf[n - cap:], valid[n - cap:], time_ns[n - cap:]
             n = cap
         if n == 0:
-            return
-        valid = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
-        pos = np.where(valid[..., None], positions, np.nan)
-        conf = np.where(valid, confidence, 0.0)
+            return stored
         first = self.count % cap
         for lo in (first, first + cap):  # each frame twice (module doc); a run may wrap past 2 cap
             head = min(n, 2 * cap - lo)
@@ -111,6 +114,7 @@ class RingBuffer:
                 self._pos[:rest], self._conf[:rest] = pos[head:], conf[head:]
                 self._valid[:rest], self._time[:rest] = valid[head:], time_ns[head:]
         self.count += n
+        return stored
 
     def push_missing(self, time_ns: int) -> int:
         """Append a frame in which every joint is missing (absent body, dropped frame)."""
