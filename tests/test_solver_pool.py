@@ -10,7 +10,7 @@ from streamfix.frames import BodyFrame, SkeletonFrame
 from streamfix.skeletons import KINECT_V2
 from streamfix.streaming import engine as engine_module
 from streamfix.streaming.engine import EngineConfig, StreamEngine, ThreadedStreamEngine, WindowOutput
-from streamfix.streaming.solver_pool import SolverPool, pool_size, shared_pool
+from streamfix.streaming.solver_pool import SOLVER_NICE, SolverPool, pool_size, shared_pool
 
 NS = 1_000_000_000
 
@@ -114,3 +114,18 @@ def test_a_task_that_raises_does_not_stop_the_thread():
     pool.submit(broken)
     pool.submit(done.set)
     assert done.wait(10)
+
+
+def test_pool_threads_run_below_the_input_threads_priority():
+    """A live frame must not wait for a solve's time slice: the solver threads are niced
+    (per thread, on Linux), the thread that submits is not."""
+    if not hasattr(os, "getpriority"):
+        return
+    main_nice = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    pool = SolverPool(1)
+    seen: list[int] = []
+    done = threading.Event()
+    pool.submit(lambda: (seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id())), done.set()))
+    assert done.wait(10)
+    assert seen == [min(19, main_nice + SOLVER_NICE)]
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == main_nice

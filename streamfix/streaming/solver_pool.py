@@ -9,6 +9,11 @@ windows in the order they were scheduled (the order their frames fall due), each
 full speed, and leaves the input thread a single contender for the GIL per core
 (``benchmarks/bench_service.py`` measures both set-ups; ``results/service.json``).
 
+The threads run :data:`SOLVER_NICE` below the process's CPU priority. On a core shared
+with the input thread, a live frame that arrives mid-solve otherwise waits for the solver
+to use up its time slice: with one body, most of the live path's p99 through the sockets
+(``bench_service``). The solver still gets every cycle the input thread leaves.
+
 A task is a plain callable; the engine passes one that solves a window and does its own
 book-keeping, and never raises (:meth:`StreamEngine._solve_queued`); a task that does
 raise is logged and the thread goes on. The threads are
@@ -22,9 +27,26 @@ import queue
 import threading
 from typing import Callable
 
-__all__ = ["SolverPool", "shared_pool", "pool_size"]
+__all__ = ["SolverPool", "shared_pool", "pool_size", "SOLVER_NICE", "lower_priority"]
 
 _log = logging.getLogger(__name__)
+
+SOLVER_NICE = 10
+"""How much lower (nice increment) window solvers run than the service's input thread:
+the pool's threads here and the children of :mod:`~streamfix.streaming.solver_process`.
+The live path is the service's input thread; at equal priority a frame waits for a solve
+to use up its time slice."""
+
+
+def lower_priority(increment: int = SOLVER_NICE) -> None:
+    """Lower the calling thread's CPU priority by ``increment`` (Linux: niceness is per
+    thread); a no-op where the platform has no per-thread priority."""
+    try:
+        tid = threading.get_native_id()
+        current = os.getpriority(os.PRIO_PROCESS, tid)
+        os.setpriority(os.PRIO_PROCESS, tid, min(19, current + int(increment)))
+    except (AttributeError, OSError):  # no setpriority (Windows), or refused
+        pass
 
 
 def pool_size() -> int:
@@ -54,6 +76,7 @@ class SolverPool:
         self._tasks.put(task)
 
     def _work(self) -> None:
+        lower_priority()  # the live path first (module doc)
         while True:
             task = self._tasks.get()
             try:

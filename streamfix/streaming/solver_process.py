@@ -26,9 +26,9 @@ What is guaranteed
 * ``close()`` (called by ``StreamEngine.close``) stops the child.
 * At most one child per CPU solves at a time: the engine calls the solver from the shared
   pool's threads, one per CPU (:mod:`streamfix.streaming.solver_pool`; the other windows wait
-  their turn in its queue), and the children run at a lower CPU
-  priority (:data:`CHILD_NICE`): on a shared core the input thread's live frames go first,
-  the solves take what is left.
+  their turn in its queue), and the children run at a lower CPU priority
+  (:data:`~streamfix.streaming.solver_pool.SOLVER_NICE`, as the pool's threads): on a
+  shared core the input thread's live frames go first, the solves take what is left.
 
 How children start
 ------------------
@@ -48,6 +48,7 @@ import threading
 from typing import Any, Callable
 
 from .solver_api import WindowSolver
+from .solver_pool import SOLVER_NICE
 from .window_solvers import default_window_solver
 
 __all__ = ["ProcessWindowSolver", "SolverProcessError", "prepare_solver_process", "DEFAULT_TIMEOUT_S"]
@@ -56,11 +57,6 @@ DEFAULT_TIMEOUT_S = 5.0
 """Seconds a window may take in the child before it is declared stalled (a window
 normally takes tens of milliseconds; the engine abandons a stalled window after
 ``max_clean_delay_s`` on its own, this frees the worker thread for the next one)."""
-CHILD_NICE = 10
-"""How much lower the children's CPU priority is than the service's. The live path runs on
-the service's input thread: a frame must not wait for the solves to use up their time
-slices (on one core at equal priority, 5 children left the live p99 as high as the GIL
-did); the children still get every cycle the input thread leaves."""
 STARTUP_TIMEOUT_S = 60.0
 """Seconds a new child may take to be ready (a cold forkserver imports and compiles)."""
 _PRELOAD = "streamfix.streaming._solver_preload"  # what the forkserver imports (solver stack, kernels)
@@ -79,7 +75,7 @@ def _child_main(conn: Any, factory: Callable[[], WindowSolver], prior_path: str 
     """The child: build the solver, warm up, say ready, then answer calls until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the service's to handle: it closes us
     try:
-        os.nice(CHILD_NICE)  # the live path first (see CHILD_NICE)
+        os.nice(SOLVER_NICE)  # the live path first (see SOLVER_NICE)
     except OSError:
         pass
     try:
