@@ -129,3 +129,23 @@ def test_pool_threads_run_below_the_input_threads_priority():
     assert done.wait(10)
     assert seen == [min(19, main_nice + SOLVER_NICE)]
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == main_nice
+
+
+def test_a_threaded_engine_imports_the_solvers_lazy_modules_before_its_first_window():
+    """An import inside a window holds the GIL (and the import lock) while the live path
+    waits: the threaded engine does them when it starts."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from streamfix.skeletons import KINECT_V2\n"
+        "from streamfix.streaming.engine import EngineConfig, ThreadedStreamEngine\n"
+        "lazy = ['streamfix.prior.init', 'streamfix.core.dislocated', 'streamfix.core.pca_gapfill']\n"
+        "before = [m for m in lazy if m in sys.modules]\n"
+        "ThreadedStreamEngine(KINECT_V2, EngineConfig()).close()\n"
+        "print(before, [m for m in lazy if m not in sys.modules])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[] []", out.stdout

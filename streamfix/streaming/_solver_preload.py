@@ -5,7 +5,8 @@ starts threads, and a process with threads must not be forked."""
 from __future__ import annotations
 
 from ..core import kernels
-from .window_solvers import default_window_solver
+from .window_solvers import default_window_solver, import_solver_modules
 
 default_window_solver()  # imports what the default solver imports on its first window
+import_solver_modules()  # and what it imports later, inside windows
 kernels.warm_up()

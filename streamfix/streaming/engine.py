@@ -175,7 +175,14 @@ from .overlap_add import blend_window
 from .solver_api import WindowOutput, WindowSolver
 from .solver_pool import SolverPool, shared_pool
 from .window_job import solve_job
-from .window_solvers import alm_window_solver, default_window_solver, wants, with_max_iterations, with_score_frames
+from .window_solvers import (
+    alm_window_solver,
+    default_window_solver,
+    import_solver_modules,
+    wants,
+    with_max_iterations,
+    with_score_frames,
+)
 
 __all__ = [
     "EngineConfig",
@@ -276,10 +283,12 @@ class StreamEngine:
             if sys.getswitchinterval() > 0.0005:
                 sys.setswitchinterval(0.0005)
 
-            # compile / load the kernels now: not on the first live frame or window
+            # compile / load the kernels and import the solver's lazy imports now: not on
+            # the first live frame or window
             from ..core import kernels
 
             kernels.warm_up()
+            import_solver_modules()
             self._pool = shared_pool()  # one FIFO of windows for every engine of the process
 
     # ------------------------------------------------------------------ public API

@@ -68,6 +68,15 @@ def wants(solver: WindowSolver, flag: str) -> bool:
     return inner is not None and inner is not solver and bool(getattr(inner, flag, False))
 
 
+def import_solver_modules() -> None:
+    """Import the modules the default solver imports lazily inside its windows (the prior's
+    initialiser, the dislocated-limb repair, PCA's rigid pairs): about 25 ms that an import
+    would otherwise spend holding the GIL, and the interpreter's import lock, in a solver
+    thread the first time a window needs one, while the live path waits. Loads no model."""
+    from ..core import dislocated, pca_gapfill  # noqa: F401
+    from ..prior import init  # noqa: F401
+
+
 def _default_config(solver: WindowSolver) -> Any:
     """The ``config`` a window solver (or the base of a wrapping one) uses when given None, or None."""
     solver = getattr(solver, "base_solver", solver)
