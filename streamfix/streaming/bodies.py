@@ -142,6 +142,26 @@ class Body:
         self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
         self.hist_n = 0
 
+    def reuse_rows(self, rows) -> None:
+        """Clear the output accumulators of timeline rows ``rows`` (an index or an array of
+        them, frame % cap) for new frames; their old frames were finalised long ago."""
+        for acc in (self.mean, self.den, self.recw, self.noise):
+            acc[rows] = 0.0
+        self.released_only[rows] = False
+
+    def store_present(self, rows, last: int, raw, conf, valid, live, live_rec) -> None:
+        """Record present frames in timeline rows ``rows``: the sensor's samples as the
+        ring stored them (``raw`` m, NaN where invalid; ``conf``; ``valid``) and the live
+        path's output (``live`` m, ``live_rec``); ``last`` = the newest one's timeline frame."""
+        self.live[rows] = live
+        self.live_rec[rows] = live_rec
+        self.conf[rows] = conf
+        self.raw[rows] = raw
+        self.valid[rows] = valid
+        self.present[rows] = True
+        self.absent = 0
+        self.last_present = last
+
     def history(self) -> np.ndarray:
         """``(T_h, J, 3)`` copy of the kept clean history, oldest frame first."""
         n, cap = self.hist_n, len(self.hist)

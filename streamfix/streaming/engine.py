@@ -504,17 +504,8 @@ class StreamEngine:
         n0 = body.count
         raw, conf, valid = body.ring.push_many(positions, confidence, times)
         rows = (n0 + np.arange(n)) % body.cap
-        for acc in (body.mean, body.den, body.recw, body.noise):
-            acc[rows] = 0.0
-        body.released_only[rows] = False
-        body.live[rows] = np.nan  # offline: no live path
-        body.live_rec[rows] = True
-        body.conf[rows] = conf
-        body.raw[rows] = raw
-        body.valid[rows] = valid
-        body.present[rows] = True
-        body.absent = 0
-        body.last_present = n0 + n - 1
+        body.reuse_rows(rows)
+        body.store_present(rows, n0 + n - 1, raw, conf, valid, np.nan, True)  # offline: no live path
         body.count = n0 + n
 
     def _advance(self, st: StreamState, frame: SkeletonFrame | None, t_ns: int, out: list) -> None:
@@ -557,12 +548,7 @@ class StreamEngine:
         for bid, body in list(st.bodies.items()):
             n = body.count
             k = n % body.cap
-            # the row is being reused: it must have been finalised long ago
-            body.mean[k] = 0.0
-            body.den[k] = 0.0
-            body.recw[k] = 0.0
-            body.noise[k] = 0.0
-            body.released_only[k] = False
+            body.reuse_rows(k)
             if bid in present_ids:
                 t0 = time.perf_counter()
                 bf = inputs.get(bid)
@@ -575,17 +561,9 @@ class StreamEngine:
                     if body.absent > 3:
                         body.live_path.reset()
                     y, rec = body.live_path.step(pos, valid, t_s)
-                    body.live[k] = y
-                    body.live_rec[k] = rec
+                    body.store_present(k, n, pos, conf, valid, y, rec)
                 else:  # offline: no live path (its output would be discarded)
-                    body.live[k] = np.nan
-                    body.live_rec[k] = True
-                body.conf[k] = conf
-                body.raw[k] = pos
-                body.valid[k] = valid
-                body.present[k] = True
-                body.absent = 0
-                body.last_present = n
+                    body.store_present(k, n, pos, conf, valid, np.nan, True)
                 if self.cfg.live_output:
                     live_bodies.append(
                         BodyFrame(bid, y.copy(), output_confidence(y, conf if bf is not None else None, rec), rec.copy())
