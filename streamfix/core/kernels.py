@@ -27,6 +27,8 @@ into a single compiled loop over frames and channels:
   (:func:`streamfix.core.isometry.length_mode_with_support`) from the same sort;
 * :func:`theil_sen_line`: the live path's robust line through the last raw samples
   (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
+* :func:`kabsch_rotations`: the best rotations of :func:`streamfix.core.pca_gapfill._kabsch_svd`
+  (PCA gap filling normalises every frame with one), without a batched 3x3 SVD;
 * :func:`live_step`: one whole frame of the live path's default chain (that gate, the One
   Euro filter, the bone projection) in one call, bit for bit: the per-frame path is
   dozens of tiny numpy calls per body, and their overhead was most of its cost.
@@ -52,7 +54,7 @@ __all__ = [
     "COMPILED", "HAVE_NUMBA", "local_poly", "running_median", "detrended_edges", "DETRENDED_EDGES_MAX_WINDOW",
     "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
-    "shorth_mode", "length_mode_with_support", "live_step", "warm_up",
+    "shorth_mode", "length_mode_with_support", "live_step", "kabsch_rotations", "warm_up",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -1046,6 +1048,132 @@ def length_mode_with_support(
     return lengths, support
 
 
+# --------------------------------------------------------------------------- Kabsch rotations
+def _kabsch_loop(H, out):  # pragma: no cover - compiled
+    """Per ``H[t]`` (3x3): ``out[t] = U V^T`` from ``H = U S V^T`` with ``U``, ``V`` proper
+    rotations (the last singular value carries the sign of ``det H``), which is Kabsch's
+    rotation with its reflection fix. ``V``: eigenvectors of ``H^T H`` by cyclic Jacobi,
+    its third column ``v1 x v2``; ``U``: ``H v1``, ``H v2`` orthonormalised, ``u1 x u2``."""
+    n = H.shape[0]
+    A = np.empty((3, 3))
+    V = np.empty((3, 3))
+    for t in range(n):
+        scale = 0.0
+        for i in range(3):
+            for j in range(3):
+                v = abs(H[t, i, j])
+                if not v <= scale:  # NaN too
+                    scale = v
+        if not (scale > 0.0 and scale < np.inf):
+            for i in range(3):
+                for j in range(3):
+                    out[t, i, j] = (1.0 if i == j else 0.0) if scale == 0.0 else np.nan
+            continue
+        inv = 1.0 / scale
+        for i in range(3):
+            for j in range(i, 3):
+                s = 0.0
+                for k in range(3):
+                    s += (H[t, k, i] * inv) * (H[t, k, j] * inv)
+                A[i, j] = s
+                A[j, i] = s
+                V[i, j] = 1.0 if i == j else 0.0
+                V[j, i] = V[i, j]
+        for sweep in range(32):
+            off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
+            if off <= 1e-36 * (A[0, 0] * A[0, 0] + A[1, 1] * A[1, 1] + A[2, 2] * A[2, 2]):
+                break
+            for p in range(2):
+                for q in range(p + 1, 3):
+                    apq = A[p, q]
+                    if apq == 0.0:
+                        continue
+                    theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+                    tt = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                    c = 1.0 / np.sqrt(tt * tt + 1.0)
+                    s = tt * c
+                    for k in range(3):
+                        akp = A[k, p]
+                        akq = A[k, q]
+                        A[k, p] = c * akp - s * akq
+                        A[k, q] = s * akp + c * akq
+                    for k in range(3):
+                        apk = A[p, k]
+                        aqk = A[q, k]
+                        A[p, k] = c * apk - s * aqk
+                        A[q, k] = s * apk + c * aqk
+                    for k in range(3):
+                        vkp = V[k, p]
+                        vkq = V[k, q]
+                        V[k, p] = c * vkp - s * vkq
+                        V[k, q] = s * vkp + c * vkq
+        i1 = 0
+        if A[1, 1] > A[i1, i1]:
+            i1 = 1
+        if A[2, 2] > A[i1, i1]:
+            i1 = 2
+        i2 = 1 if i1 == 0 else 0
+        for i in range(3):
+            if i != i1 and A[i, i] > A[i2, i2]:
+                i2 = i
+        v10, v11, v12 = V[0, i1], V[1, i1], V[2, i1]
+        v20, v21, v22 = V[0, i2], V[1, i2], V[2, i2]
+        v30, v31, v32 = v11 * v22 - v12 * v21, v12 * v20 - v10 * v22, v10 * v21 - v11 * v20
+        b10 = H[t, 0, 0] * v10 + H[t, 0, 1] * v11 + H[t, 0, 2] * v12
+        b11 = H[t, 1, 0] * v10 + H[t, 1, 1] * v11 + H[t, 1, 2] * v12
+        b12 = H[t, 2, 0] * v10 + H[t, 2, 1] * v11 + H[t, 2, 2] * v12
+        b20 = H[t, 0, 0] * v20 + H[t, 0, 1] * v21 + H[t, 0, 2] * v22
+        b21 = H[t, 1, 0] * v20 + H[t, 1, 1] * v21 + H[t, 1, 2] * v22
+        b22 = H[t, 2, 0] * v20 + H[t, 2, 1] * v21 + H[t, 2, 2] * v22
+        n1 = np.sqrt(b10 * b10 + b11 * b11 + b12 * b12)
+        u10, u11, u12 = b10 / n1, b11 / n1, b12 / n1
+        d = u10 * b20 + u11 * b21 + u12 * b22
+        b20 -= d * u10
+        b21 -= d * u11
+        b22 -= d * u12
+        n2 = np.sqrt(b20 * b20 + b21 * b21 + b22 * b22)
+        if not n2 > 1e-12 * n1:  # rank 1: any direction perpendicular to u1
+            a0, a1, a2 = 0.0, 0.0, 0.0
+            if abs(u10) <= abs(u11) and abs(u10) <= abs(u12):
+                a0 = 1.0
+            elif abs(u11) <= abs(u12):
+                a1 = 1.0
+            else:
+                a2 = 1.0
+            d = u10 * a0 + u11 * a1 + u12 * a2
+            b20, b21, b22 = a0 - d * u10, a1 - d * u11, a2 - d * u12
+            n2 = np.sqrt(b20 * b20 + b21 * b21 + b22 * b22)
+        u20, u21, u22 = b20 / n2, b21 / n2, b22 / n2
+        u30, u31, u32 = u11 * u22 - u12 * u21, u12 * u20 - u10 * u22, u10 * u21 - u11 * u20
+        out[t, 0, 0] = u10 * v10 + u20 * v20 + u30 * v30
+        out[t, 0, 1] = u10 * v11 + u20 * v21 + u30 * v31
+        out[t, 0, 2] = u10 * v12 + u20 * v22 + u30 * v32
+        out[t, 1, 0] = u11 * v10 + u21 * v20 + u31 * v30
+        out[t, 1, 1] = u11 * v11 + u21 * v21 + u31 * v31
+        out[t, 1, 2] = u11 * v12 + u21 * v22 + u31 * v32
+        out[t, 2, 0] = u12 * v10 + u22 * v20 + u32 * v30
+        out[t, 2, 1] = u12 * v11 + u22 * v21 + u32 * v31
+        out[t, 2, 2] = u12 * v12 + u22 * v22 + u32 * v32
+
+
+_kabsch_compiled = _jit(_kabsch_loop)
+
+
+def kabsch_rotations(H: np.ndarray) -> np.ndarray:
+    """``(N, 3, 3)`` rotations ``R`` maximising ``tr(R^T H_t)`` for ``H`` ``(N, 3, 3)``
+    (``H_t = P_t^T Q``: ``R`` minimises ``|P_t R - Q|``): the rotations of
+    :func:`streamfix.core.pca_gapfill._kabsch_svd`, to rounding, without numpy's per-matrix
+    LAPACK call (several times faster on a few hundred frames). Where the minimiser is not unique (``H`` of rank 1:
+    collinear points) both return one of them, not necessarily the same. An all-zero
+    ``H`` gives the identity, a non-finite one NaN. Needs numba (:data:`HAVE_NUMBA`)."""
+    if _kabsch_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.kabsch_rotations needs numba; use pca_gapfill._kabsch")
+    h = np.ascontiguousarray(H, dtype=np.float64).reshape(-1, 3, 3)
+    out = np.empty_like(h)
+    _kabsch_compiled(h, out)
+    return out.reshape(np.shape(H))
+
+
 # --------------------------------------------------------------------------- warm-up
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel now, on tiny inputs.
@@ -1072,6 +1200,7 @@ def warm_up() -> None:
     bone_spread_deviations(finite, np.ones((12, 3), dtype=bool), bones, 0.01)
     shorth_mode(x[:, :, 0], 0.5)
     length_mode_with_support(x[:, :, 0], 0.1, 0.005, 0.02)
+    kabsch_rotations(finite)
     pi, pj = (np.ascontiguousarray(a) for a in np.triu_indices(7, 1))
     theil_sen_line(x[:7], np.arange(7.0), pi, pj)
     state = (np.full((3, 3), np.nan), np.zeros((3, 3)), np.zeros(3), np.zeros(3, dtype=bool))
