@@ -1,6 +1,7 @@
 """The service's hardening parts in isolation: numbering, skeleton scope, backlog policy, limits."""
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -75,6 +76,27 @@ def test_backlog_sheds_the_oldest_by_age_and_count_and_block_never_sheds():
     assert len(got) == 50 and shed == {}
     with pytest.raises(ValueError, match="overload policy"):
         Backlog(policy="drop-newest")
+
+
+def test_backlog_wake_ends_a_wait_for_input_without_losing_input():
+    """The service loop waits in take() for input; a solver thread that finished a window
+    wakes it so the clean frames go out now. A wake before the wait makes the next take
+    return at once, and only that one."""
+    b = Backlog()
+    threading.Timer(0.05, b.wake).start()
+    t0 = time.monotonic()
+    got, shed = b.take(30.0, 10)
+    assert (got, shed) == ([], {}) and time.monotonic() - t0 < 15.0
+    b.wake()
+    t0 = time.monotonic()
+    assert b.take(30.0, 10) == ([], {}) and time.monotonic() - t0 < 15.0
+    t0 = time.monotonic()
+    b.take(0.2, 10)  # the wake was used up: this one waits its timeout
+    assert time.monotonic() - t0 >= 0.15
+    b.put([b"sf/raw/a", b"x"], time.monotonic_ns())
+    b.wake()
+    got, _ = b.take(30.0, 10)
+    assert [p[1] for p, *_ in got] == [b"x"]
 
 
 def test_far_coordinates_become_missing_and_rates_are_bounded():

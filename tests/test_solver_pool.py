@@ -1,6 +1,7 @@
 """The process-wide pool of window-solver threads (streamfix.streaming.solver_pool)."""
 from __future__ import annotations
 
+import itertools
 import os
 import threading
 
@@ -61,6 +62,7 @@ def test_engines_share_the_pool_and_give_the_synchronous_output():
     streams = [list(_frames(120, f"s{k}", rng)) for k in range(5)]
     solvers = [RecordingSolver() for _ in streams]
     engines = [ThreadedStreamEngine(KINECT_V2, cfg, s) for s in solvers]
+    first = shared_pool().body_ordinals_issued  # the engines' bodies take the next five, in push order
     outs: list[list] = [[] for _ in streams]
     for i in range(120):  # interleaved, as serve receives them
         for k, eng in enumerate(engines):
@@ -71,12 +73,54 @@ def test_engines_share_the_pool_and_give_the_synchronous_output():
     names = set().union(*(s.threads for s in solvers))
     assert names <= {f"streamfix-solver-{i}" for i in range(pool_size())}, names
     for k, frames in enumerate(streams):
-        sync = StreamEngine(KINECT_V2, cfg, RecordingSolver())
+        # the same window phase as the threaded engine's body (its ordinal in the pool)
+        sync = StreamEngine(KINECT_V2, cfg, RecordingSolver(), body_ordinals=itertools.count(first + k).__next__)
         expected = [f for kind, f in [x for fr in frames for x in sync.push(fr)] + sync.flush() if kind == "clean"]
         got = [f for kind, f in outs[k] if kind == "clean"]
         assert [f.seq for f in got] == [f.seq for f in expected]
         assert np.array_equal(np.stack([f.bodies[0].positions for f in got]),
                               np.stack([f.bodies[0].positions for f in expected]))
+
+
+def test_bodies_of_engines_sharing_the_pool_fall_due_on_different_frames(monkeypatch):
+    """serve runs an engine per stream: the k-th body of every stream must not get the same
+    window phase, or their windows all fall due on one frame and the last waits for the
+    others (clean delay). The pool numbers the bodies of all its engines together; a
+    synchronous engine numbers its own from 0, so offline output does not depend on what
+    else the process runs."""
+    from streamfix.streaming.bodies import hop_phase
+
+    pool = SolverPool(1)
+    monkeypatch.setattr(engine_module, "shared_pool", lambda: pool)
+    cfg = EngineConfig(rate_hz=30.0)
+    rng = np.random.default_rng(5)
+    engines = [ThreadedStreamEngine(KINECT_V2, cfg, RecordingSolver()) for _ in range(5)]
+    for k, eng in enumerate(engines):
+        eng.push(next(_frames(1, f"s{k}", rng)))
+    phases = [next(iter(eng.streams.values())).bodies[1].phase for eng in engines]
+    assert phases == [hop_phase(k, cfg.hop) for k in range(5)]
+    assert len(set(phases)) == 5 and pool.body_ordinals_issued == 5
+    for eng in engines:
+        eng.close()
+    sync = [StreamEngine(KINECT_V2, cfg, RecordingSolver()) for _ in range(2)]
+    for k, eng in enumerate(sync):
+        eng.push(next(_frames(1, f"s{k}", rng)))
+    assert [next(iter(eng.streams.values())).bodies[1].phase for eng in sync] == [0, 0]
+
+
+def test_an_engine_tells_its_listener_when_a_window_is_done():
+    """The service wakes its loop on this (the clean frames go out at once, not at the
+    loop's next turn): called from the pool's thread once per finished window."""
+    cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
+    eng = ThreadedStreamEngine(KINECT_V2, cfg, RecordingSolver())
+    calls: list[str] = []
+    eng.on_window_done = lambda: calls.append(threading.current_thread().name)
+    for f in _frames(60, "w", np.random.default_rng(6)):
+        eng.push(f)
+    eng.flush(timeout=30)
+    eng.close()
+    assert len(calls) == eng.metrics()["windows_scheduled"] > 0
+    assert all(name.startswith("streamfix-solver-") for name in calls), calls
 
 
 def test_a_closed_engine_s_queued_windows_are_not_solved(monkeypatch):

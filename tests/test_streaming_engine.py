@@ -7,6 +7,7 @@ Event-gated one that stalls until the test releases it.
 """
 from __future__ import annotations
 
+import itertools
 import threading
 
 import numpy as np
@@ -336,7 +337,9 @@ def test_threaded_push_never_blocks_on_a_stalled_solver_and_degrades(kinect):
 def test_threaded_equals_synchronous_when_keeping_up(kinect):
     cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
     sync = split(run(StreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))[0])[1]
-    threaded = run_threaded(ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))
+    # numbered from 0 like the synchronous engine's body (the shared pool numbers all threaded engines' bodies)
+    threaded = run_threaded(ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver, body_ordinals=itertools.count().__next__),
+                            frames_of(kinect, uniform=True))
     assert [f.seq for f in threaded] == [f.seq for f in sync]
     assert np.array_equal(body_array(threaded), body_array(sync))
 
@@ -509,7 +512,8 @@ def test_output_smoothing_threaded_equals_synchronous(kinect):
     sync = split(run(StreamEngine(KINECT_V2, cfg, noisy_savgol), frames_of(kinect, uniform=True))[0])[1]
     plain = split(run(StreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))[0])[1]
     assert np.abs(body_array(sync) - body_array(plain)).max() > 1e-5
-    threaded = run_threaded(ThreadedStreamEngine(KINECT_V2, cfg, noisy_savgol), frames_of(kinect, uniform=True))
+    threaded = run_threaded(ThreadedStreamEngine(KINECT_V2, cfg, noisy_savgol, body_ordinals=itertools.count().__next__),
+                            frames_of(kinect, uniform=True))
     assert np.array_equal(body_array(threaded), body_array(sync))
 
 

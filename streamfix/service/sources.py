@@ -178,6 +178,7 @@ class Backlog:
         self._meta: deque = deque()
         self._cond = threading.Condition()
         self._closed = False
+        self._woken = False  # wake() since the last take(): it returns at once
         self.shed: Counter = Counter()  # stream (None = unknown) -> frames shed, not yet reported
         self.shed_total = 0
 
@@ -212,6 +213,13 @@ class Backlog:
             self._closed = True
             self._cond.notify_all()
 
+    def wake(self) -> None:
+        """End a :meth:`take` that waits for input now (or make the next one return at
+        once): the service has other work, e.g. clean frames a solver thread finished."""
+        with self._cond:
+            self._woken = True
+            self._cond.notify_all()
+
     def _trim(self, now_ns: int) -> None:
         if self.max_age_ns is None:
             return
@@ -224,8 +232,9 @@ class Backlog:
     def take(self, timeout_s: float, max_n: int) -> tuple[list, dict]:
         """Up to ``max_n`` messages (skeleton messages first) and the shed counts since the last call."""
         with self._cond:
-            if not self._items and not self._meta and timeout_s > 0:
+            if not self._items and not self._meta and timeout_s > 0 and not self._woken:
                 self._cond.wait(timeout_s)
+            self._woken = False
             self._trim(time.monotonic_ns())
             out = []
             while self._meta and len(out) < max_n:
@@ -360,6 +369,10 @@ class ZmqSource:
     def pending(self) -> tuple[int, float]:
         """Input waiting to be handled: (messages, age of the oldest in seconds)."""
         return self.backlog.depth()
+
+    def wake(self) -> None:
+        """Make a :meth:`poll` waiting for input return now (thread-safe)."""
+        self.backlog.wake()
 
     def drop_pending(self) -> list[Item]:
         """Give up on what still waits (shutdown): stop receiving, then count what the backlog

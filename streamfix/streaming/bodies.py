@@ -85,6 +85,9 @@ def hop_phase(ordinal: int, hop: int) -> int:
     phases (rounding down gave the sixth the first one's, so their windows queued
     together). The first body gets 0, so a single body's output is unchanged. Only the second window
     comes early (its hop is shorter), so every frame is still covered (H <= L + 1).
+    A synchronous engine numbers its own bodies; threaded engines (``serve``, one per
+    stream) number theirs together through the solver pool they share
+    (:meth:`streamfix.streaming.solver_pool.SolverPool.next_body_ordinal`).
     """
     return int(((ordinal * 0.6180339887498949) % 1.0) * hop + 0.5) % hop
 

@@ -137,9 +137,10 @@ the overload policy (:mod:`.degradation`).
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -205,6 +206,12 @@ class StreamEngine:
     frame per input frame (plus one per synthesised dropped frame), and the clean
     frames that left the lookahead. ``flush()`` emits every pending frame.
     ``window_solver``: see :data:`WindowSolver`; None = :func:`default_window_solver`.
+    ``body_ordinals``: gives each new body its ordinal, which sets its window phase
+    (:func:`~streamfix.streaming.bodies.hop_phase`); None = this engine's own count from 0,
+    or, threaded, the shared solver pool's count over all its engines.
+    ``on_window_done`` (attribute, threaded mode): called with no arguments from the solver
+    thread each time one of this engine's windows leaves the pool, so a caller that sleeps
+    between inputs can :meth:`poll` the clean frames at once.
     """
 
     def __init__(
@@ -214,6 +221,7 @@ class StreamEngine:
         window_solver: WindowSolver | None = None,
         *,
         threaded: bool | None = None,
+        body_ordinals: Callable[[], int] | None = None,
     ) -> None:
         self.skeleton = skeleton
         self.cfg = config if config is not None else EngineConfig()
@@ -268,6 +276,8 @@ class StreamEngine:
         self._inflight = 0  # submitted, not finished (threaded)
         self._done_total = 0
         self._pool: SolverPool | None = None
+        # the service wakes its loop with it to poll() the clean frames now, not at its next turn
+        self.on_window_done: Callable[[], None] | None = None
         self._learn_lengths = bool(len(self.bones)) and self._fixed_lengths is None
         # offline (synchronous, no live topic): nothing waits for a clean frame, so frames are
         # finalised and emitted in runs, when a window is due and at the end, not one per push
@@ -290,6 +300,16 @@ class StreamEngine:
             kernels.warm_up()
             import_solver_modules()
             self._pool = shared_pool()  # one FIFO of windows for every engine of the process
+        # a new body's ordinal sets its window phase (bodies.hop_phase). Engines that share the
+        # pool count their bodies together: counted per engine, the k-th body of every stream
+        # got the same phase and their windows queued behind each other on the same frame
+        # (bench_service: five 6-body streams put five windows on 6 of 10 frames and none on 4)
+        if body_ordinals is not None:
+            self._body_ordinal = body_ordinals
+        elif self._pool is not None:
+            self._body_ordinal = self._pool.next_body_ordinal
+        else:
+            self._body_ordinal = itertools.count().__next__
 
     # ------------------------------------------------------------------ public API
     def push(self, frame: SkeletonFrame, fill: bool = True) -> list[tuple[str, SkeletonFrame]]:
@@ -540,7 +560,7 @@ class StreamEngine:
                 body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live)
                 lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
                 body.live_path.set_bone_lengths(lengths)
-                body.phase = hop_phase(self.counters["bodies_seen"], self.hop)
+                body.phase = hop_phase(self._body_ordinal(), self.hop)
                 st.bodies[bid] = body
                 self.counters["bodies_seen"] += 1
         live_bodies: list[BodyFrame] = []
@@ -697,6 +717,12 @@ class StreamEngine:
                 self._inflight -= 1
                 self._done_total += 1
                 self._cond.notify_all()
+            wake = self.on_window_done
+            if wake is not None:
+                try:
+                    wake()
+                except Exception:  # noqa: BLE001 - a listener must not take the pool thread down
+                    pass
 
     # ------------------------------------------------------------------ results
     def _drain(self, st: StreamState, out: list) -> None:
@@ -797,5 +823,6 @@ class StreamEngine:
 class ThreadedStreamEngine(StreamEngine):
     """:class:`StreamEngine` whose windows are solved in the shared solver pool (live service mode)."""
 
-    def __init__(self, skeleton: Skeleton, config: EngineConfig | None = None, window_solver: WindowSolver | None = None) -> None:
-        super().__init__(skeleton, config, window_solver, threaded=True)
+    def __init__(self, skeleton: Skeleton, config: EngineConfig | None = None, window_solver: WindowSolver | None = None,
+                 *, body_ordinals: Callable[[], int] | None = None) -> None:
+        super().__init__(skeleton, config, window_solver, threaded=True, body_ordinals=body_ordinals)

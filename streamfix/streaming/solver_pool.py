@@ -65,6 +65,8 @@ class SolverPool:
             raise ValueError(f"a solver pool needs at least 1 thread, got {threads}")
         self.threads = int(threads)
         self._tasks: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._bodies = 0  # ordinals handed out by next_body_ordinal
+        self._bodies_lock = threading.Lock()
         self._workers = [
             threading.Thread(target=self._work, name=f"streamfix-solver-{i}", daemon=True) for i in range(self.threads)
         ]
@@ -74,6 +76,19 @@ class SolverPool:
     def submit(self, task: Callable[[], None]) -> None:
         """Queue ``task`` behind every task submitted before it."""
         self._tasks.put(task)
+
+    def next_body_ordinal(self) -> int:
+        """0, 1, 2, ... over every engine using this pool: the ordinal that spreads a new
+        body's windows over the hop (:func:`streamfix.streaming.bodies.hop_phase`), so the
+        bodies of all streams, not each stream's alone, fall due on different frames."""
+        with self._bodies_lock:
+            self._bodies += 1
+            return self._bodies - 1
+
+    @property
+    def body_ordinals_issued(self) -> int:
+        """How many ordinals :meth:`next_body_ordinal` has handed out."""
+        return self._bodies
 
     def _work(self) -> None:
         lower_priority()  # the live path first (module doc)
