@@ -142,3 +142,54 @@ def test_a_threaded_engine_wakes_a_source_that_can_be_woken(kinect):
         time.sleep(0.01)
     assert WakeableSource.wakes == submitted
     assert sum(k == "clean" and not f.filled for k, f in pub.sent) == 90
+
+
+def test_input_waiting_is_handled_before_the_engines_background_work(kinect):
+    """Frames that arrived together (one per stream) all get their live output before the
+    engines are polled (which hands the scheduled windows to the solver), but input that
+    keeps coming cannot hold the polls off for longer than a turn."""
+
+    class PendingSource(ScriptedSource):
+        def pending(self):
+            return len(self.items), 0.0
+
+    class RecordingEngine:
+        def __init__(self, log, delay_s=0.0):
+            self.log, self.delay_s = log, delay_s
+
+        def push(self, frame, fill=True):
+            time.sleep(self.delay_s)
+            self.log.append("push")
+            return [("live", frame)]
+
+        def poll(self):
+            self.log.append("poll")
+            return []
+
+        def flush(self, timeout=None):
+            return []
+
+        def metrics(self):
+            return {"lookahead_frames": 0}
+
+    streams = [list(_frames(kinect, range(3), stream=f"s{k}")) for k in range(5)]
+    ticks = [streams[k][i] for i in range(3) for k in range(5)]  # 3 ticks of 5 streams
+    log: list[str] = []
+    svc = Service(PendingSource(ticks, batch=1), RecordingPublisher(), lambda sk, rate: RecordingEngine(log),
+                  status_interval_s=0)
+    assert svc.run() == 0
+    first_poll = log.index("poll")
+    assert log[:first_poll] == ["push"] * 15  # everything waiting was handled first
+
+    slow: list[str] = []
+    svc = Service(PendingSource(list(_frames(kinect, range(150))), batch=1), RecordingPublisher(),
+                  lambda sk, rate: RecordingEngine(slow, delay_s=0.002), status_interval_s=0)
+    assert svc.run(max_turn_s=0.01) == 0
+    runs, n = [], 0
+    for entry in slow:
+        if entry == "push":
+            n += 1
+        elif n:
+            runs.append(n)
+            n = 0
+    assert runs and max(runs) <= 10  # 2 ms a frame: polled at least every ~10 ms of input

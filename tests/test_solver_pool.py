@@ -123,6 +123,35 @@ def test_an_engine_tells_its_listener_when_a_window_is_done():
     assert all(name.startswith("streamfix-solver-") for name in calls), calls
 
 
+def test_a_window_goes_to_the_pool_after_the_frame_that_scheduled_it(monkeypatch):
+    """push() defers the windows it schedules; the next poll() (serve calls it after sending
+    the frame's live output), push() or flush() submits them: a solve that starts while the
+    live frame is still being published slows it down (bench_service, one body)."""
+    pool = SolverPool(1)
+    submitted: list = []
+    real_submit = pool.submit
+    monkeypatch.setattr(pool, "submit", lambda task: (submitted.append(task), real_submit(task)))
+    monkeypatch.setattr(engine_module, "shared_pool", lambda: pool)
+    cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
+    eng = ThreadedStreamEngine(KINECT_V2, cfg, RecordingSolver())
+    frames = list(_frames(40, "d", np.random.default_rng(7)))
+    scheduled = 0
+    for f in frames:
+        eng.push(f)
+        now = eng.metrics()["windows_scheduled"]
+        if now > scheduled:
+            assert len(submitted) == scheduled  # not yet: the caller has the live frame to send
+            eng.poll()
+            assert len(submitted) == now
+            scheduled = now
+    assert scheduled >= 3
+    eng.push(next(_frames(1, "e", np.random.default_rng(8))))  # a caller that never polls:
+    out = eng.flush(timeout=30)                                 # push and flush submit too
+    eng.close()
+    assert len(submitted) == eng.metrics()["windows_scheduled"]
+    assert sum(kind == "clean" for kind, _ in out) > 0
+
+
 def test_a_closed_engine_s_queued_windows_are_not_solved(monkeypatch):
     """Windows still queued when their engine closes are skipped, not solved, and the
     pool goes on with the other engines' windows."""

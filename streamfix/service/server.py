@@ -12,7 +12,9 @@ their own daemon threads; the engine may solve windows on its own worker):
    or whose ``seq`` jumps back by more than a second's worth (the sender restarted),
    has its engine flushed and replaced; a stream that sends nothing for
    ``idle_timeout_s`` is flushed (its last lookahead's frames come out) and forgotten. Outputs the engine finishes in the
-   background are collected with ``engine.poll()`` on every turn; an engine that finishes a
+   background are collected with ``engine.poll()`` on every turn, after the input already
+   waiting (for at most a turn: a poll also hands the windows those frames scheduled to the
+   solver, which would otherwise compete with their live output); an engine that finishes a
    window wakes a source that can be woken (``source.wake()``: the ZeroMQ input), so its clean
    frames leave at once instead of after the rest of a 10 ms wait for input.
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
@@ -672,8 +674,7 @@ class Service:
         try:
             while not self._stop.is_set():
                 items = self.source.poll(max_turn_s)
-                for item in items:
-                    self._handle(item)
+                self._handle_input(items, max_turn_s)
                 self._poll_engines()
                 now = time.monotonic()
                 self._guard_tick(now)
@@ -695,6 +696,20 @@ class Service:
             self._status(force=self.status_interval_s > 0)
             self.close()
         return 0
+
+    def _handle_input(self, items: list, max_s: float) -> None:
+        """Handle ``items`` and what arrives meanwhile, for up to ``max_s`` s, before the
+        engines' background work: their windows go to the solver when the engines are polled
+        (:meth:`StreamEngine.poll`), so the frames of every stream that arrived together have
+        their live output out before a solve competes with them for the core."""
+        pending = getattr(self.source, "pending", None)
+        deadline = time.monotonic() + max_s
+        while items:
+            for item in items:
+                self._handle(item)
+            if pending is None or pending()[0] == 0 or time.monotonic() >= deadline:
+                return
+            items = self.source.poll(0.0)
 
     def _guard_tick(self, now: float) -> None:
         try:

@@ -276,6 +276,9 @@ class StreamEngine:
         self._inflight = 0  # submitted, not finished (threaded)
         self._done_total = 0
         self._pool: SolverPool | None = None
+        # threaded: windows scheduled by the frame being pushed, handed to the pool by the next
+        # poll() (or push, flush): after the caller has sent this frame's live output
+        self._deferred: list[Job] = []
         # the service wakes its loop with it to poll() the clean frames now, not at its next turn
         self.on_window_done: Callable[[], None] | None = None
         self._learn_lengths = bool(len(self.bones)) and self._fixed_lengths is None
@@ -319,6 +322,7 @@ class StreamEngine:
         overload, so the timestamp gap is neither filled nor a discontinuity.
         """
         self._validate(frame)
+        self._submit_deferred()  # a caller that pushes without polling still gets its windows solved
         out: list[tuple[str, SkeletonFrame]] = []
         st = self.streams.get(frame.stream_id)
         if st is None:
@@ -388,6 +392,7 @@ class StreamEngine:
             for body in list(st.bodies.values()):
                 self._begin_end(st, body)
         if self.threaded:
+            self._submit_deferred()
             deadline = None if timeout is None else time.monotonic() + timeout
             with self._cond:
                 while self._inflight > 0:
@@ -410,9 +415,14 @@ class StreamEngine:
 
     def poll(self) -> list[tuple[str, SkeletonFrame]]:
         """Clean frames whose windows finished in the background since the last call
-        (threaded mode; always empty in synchronous mode). Never blocks."""
+        (threaded mode; always empty in synchronous mode). Never blocks.
+
+        Threaded, it also hands the windows the last pushes scheduled to the solver pool:
+        :meth:`push` defers them, so a solve does not start while the caller is still sending
+        the frame's live output (``serve`` polls after publishing every frame it received)."""
         out: list[tuple[str, SkeletonFrame]] = []
         if self.threaded:
+            self._submit_deferred()
             for st in self.streams.values():
                 self._drain(st, out)
         return out
@@ -422,6 +432,7 @@ class StreamEngine:
         pending windows are not waited for) and close the window solver if it has resources
         to free (a solver process)."""
         self._closed = True
+        self._submit_deferred()  # they are skipped (closed), and the in-flight count stays true
         close = getattr(self.solver, "close", None)
         if close is not None:
             close()
@@ -677,7 +688,14 @@ class StreamEngine:
             return
         with self._lock:
             self._inflight += 1
-        self._pool.submit(lambda: self._solve_queued(job))
+        self._deferred.append(job)  # submitted by the next poll(), push() or flush()
+
+    def _submit_deferred(self) -> None:
+        """Hand the windows scheduled since the last call to the solver pool, in order."""
+        if self._deferred:
+            jobs, self._deferred = self._deferred, []
+            for job in jobs:
+                self._pool.submit(lambda job=job: self._solve_queued(job))
 
     def _active_bodies(self) -> int:
         """Bodies currently tracked over all streams (>= 1): each owes one window per hop."""
