@@ -95,7 +95,7 @@ def fill_motion_gaps(
     because offline both ends are seen and the limb's motion *inside* the gap is not
     in its range next to the gap). ``trust_kappa``: each gap's PCA fill is shrunk toward
     linear interpolation unless its departure from linear is large against the model's
-    error at the gap's ends (:func:`~streamfix.core.pca_gapfill.shrink_untrusted`;
+    error at the gap's ends (:func:`~streamfix.core.pca_boundary.shrink_untrusted`;
     default :data:`TRUST_KAPPA` for skeletons with bones, off for marker sets; None =
     off). A summary goes to ``meta["gapfill"]``.
     """

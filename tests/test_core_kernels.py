@@ -275,7 +275,7 @@ def test_kabsch_kernel_matches_the_svd_reference_on_kinect_frames(kinect):
     """PCA gap filling rotates every frame's observed joints onto a reference pose: the
     compiled rotations equal the batched SVD's to rounding on real frames (3, 4 and 6
     joints, the local templates' sizes), are proper rotations, and fit as well."""
-    from streamfix.core.pca_gapfill import _kabsch_svd
+    from streamfix.core.pca_normalise import kabsch_svd
 
     positions = kinect[0]
     for joints in ([4, 5, 6], [8, 9, 10, 11], [0, 1, 2, 3, 20, 12]):
@@ -283,7 +283,7 @@ def test_kabsch_kernel_matches_the_svd_reference_on_kinect_frames(kinect):
         P = P[np.isfinite(P).all(axis=(1, 2))]
         Q = P[len(P) // 2]
         H = np.swapaxes(P, 1, 2) @ Q
-        fast, ref = kernels.kabsch_rotations(H), _kabsch_svd(H)
+        fast, ref = kernels.kabsch_rotations(H), kabsch_svd(H)
         assert np.abs(fast - ref).max() < 1e-9
         assert np.allclose(np.linalg.det(fast), 1.0) and np.allclose(fast @ np.swapaxes(fast, 1, 2), np.eye(3))
         assert np.abs(np.linalg.norm(P @ fast - Q, axis=(1, 2)) - np.linalg.norm(P @ ref - Q, axis=(1, 2))).max() < 1e-12
@@ -292,7 +292,7 @@ def test_kabsch_kernel_matches_the_svd_reference_on_kinect_frames(kinect):
 def test_kabsch_kernel_on_degenerate_inputs():
     """All-zero H (coincident points): the identity; non-finite: NaN; rank 1 (collinear
     points, no unique best rotation): a proper rotation as good as the SVD's."""
-    from streamfix.core.pca_gapfill import _kabsch_svd
+    from streamfix.core.pca_normalise import kabsch_svd
 
     rng = np.random.default_rng(0)
     line = np.outer(np.linspace(-1, 1, 4), rng.normal(size=3))
@@ -301,7 +301,7 @@ def test_kabsch_kernel_on_degenerate_inputs():
     R = kernels.kabsch_rotations(H)
     assert np.array_equal(R[0], np.eye(3)) and np.isnan(R[1]).all()
     assert np.isclose(np.linalg.det(R[2]), 1.0)
-    ref = _kabsch_svd(H[2:])[0]
+    ref = kabsch_svd(H[2:])[0]
     assert np.isclose(np.linalg.norm(line @ R[2] - Q), np.linalg.norm(line @ ref - Q))
 
 

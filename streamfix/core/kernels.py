@@ -27,7 +27,7 @@ into a single compiled loop over frames and channels:
   (:func:`streamfix.core.isometry.length_mode_with_support`) from the same sort;
 * :func:`theil_sen_line`: the live path's robust line through the last raw samples
   (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
-* :func:`kabsch_rotations`: the best rotations of :func:`streamfix.core.pca_gapfill._kabsch_svd`
+* :func:`kabsch_rotations`: the best rotations of :func:`streamfix.core.pca_normalise.kabsch_svd`
   (PCA gap filling normalises every frame with one), without a batched 3x3 SVD;
 * :func:`live_step`: one whole frame of the live path's default chain (that gate, the One
   Euro filter, the bone projection) in one call, bit for bit: the per-frame path is
@@ -1162,12 +1162,12 @@ _kabsch_compiled = _jit(_kabsch_loop)
 def kabsch_rotations(H: np.ndarray) -> np.ndarray:
     """``(N, 3, 3)`` rotations ``R`` maximising ``tr(R^T H_t)`` for ``H`` ``(N, 3, 3)``
     (``H_t = P_t^T Q``: ``R`` minimises ``|P_t R - Q|``): the rotations of
-    :func:`streamfix.core.pca_gapfill._kabsch_svd`, to rounding, without numpy's per-matrix
+    :func:`streamfix.core.pca_normalise.kabsch_svd`, to rounding, without numpy's per-matrix
     LAPACK call (several times faster on a few hundred frames). Where the minimiser is not unique (``H`` of rank 1:
     collinear points) both return one of them, not necessarily the same. An all-zero
     ``H`` gives the identity, a non-finite one NaN. Needs numba (:data:`HAVE_NUMBA`)."""
     if _kabsch_compiled is None:
-        raise RuntimeError("streamfix.core.kernels.kabsch_rotations needs numba; use pca_gapfill._kabsch")
+        raise RuntimeError("streamfix.core.kernels.kabsch_rotations needs numba; use pca_normalise.kabsch_svd")
     h = np.ascontiguousarray(H, dtype=np.float64).reshape(-1, 3, 3)
     out = np.empty_like(h)
     _kabsch_compiled(h, out)

@@ -26,8 +26,10 @@ applied to every training sample ``A_i`` to give the incomplete ``A_i^(0)``):
 The rank rule and training data are in :mod:`streamfix.core.pca_training`, the
 matrix-level Eq. (1)-(8) in :mod:`streamfix.core.pca_estimators`, the rigid marker pairs
 in :mod:`streamfix.core.rigid_pairs`; their public names are importable from here too.
-This module fills partial gaps in positions (:func:`fill_gaps`: local templates, boundary
-correction); :mod:`streamfix.core.pca_fill` composes it with the blackout estimate into
+Frames are normalised by :mod:`streamfix.core.pca_normalise`, the boundary correction is
+:mod:`streamfix.core.pca_boundary`, and the Eq. (8) layout at the positions level is
+:mod:`streamfix.core.pca_pieces`. This module fills partial gaps in positions
+(:func:`fill_gaps`: templates, local templates and their partner ranking); :mod:`streamfix.core.pca_fill` composes it with the blackout estimate into
 the whole-take :func:`~streamfix.core.pca_fill.pca_fill` and the streaming
 :class:`~streamfix.core.pca_fill.PcaGapFiller`.
 
@@ -91,13 +93,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kernels
-from .interpolate import continuity_baseline, neighbour_observations
+from .pca_boundary import residual_field, shrink_untrusted
+from .pca_normalise import normalise_frames
+from .pca_pieces import fill_gaps_pieces
 # the shared ground, the matrix estimators, the blackout estimate and the rigid pairs live
 # in their own modules; their public names stay importable from here
 from .pca_blackouts import blackout_weights, eq16_basis, eq16_estimate, fill_blackouts
 from .pca_estimators import _eq4_from_grams, eq4_estimate, eq8_estimate
-from .pca_training import DEFAULT_ENERGY, TrainingSet, _as_training, _observed_mask, _runs, choose_rank
+from .pca_training import DEFAULT_ENERGY, TrainingSet, _as_training, _observed_mask, choose_rank
 from .rigid_pairs import estimate_rigid_pairs, pair_distance_plausibility, pair_distance_ranges, project_pair_distances
 
 __all__ = [
@@ -126,8 +129,6 @@ distance to it varies least in training; with several candidates, each joint tak
 the count whose estimates best match its observed samples within
 ``validation_frames`` of its gaps (None = every observed joint, the paper's
 whole-matrix template)."""
-
-_EPS = 1e-12
 
 
 # --------------------------------------------------------------------------- gaps: Eq. (4)
@@ -164,44 +165,6 @@ def _select_predictors(obs_pat: np.ndarray, tgt: np.ndarray, tr_obs: np.ndarray,
     return np.array(sorted(keep), dtype=np.intp), cur
 
 
-def _kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Rotations ``R`` ``(N, 3, 3)`` minimising ``|P_t R_t - Q|`` for centred ``P`` ``(N, k, 3)``, ``Q`` ``(k, 3)``
-    (compiled when :data:`streamfix.core.kernels.COMPILED`: every frame of every template is
-    normalised with one, and the batched SVD was half of a streaming PCA fill's cost)."""
-    H = np.swapaxes(P, 1, 2) @ Q                             # (N, 3, 3)
-    return kernels.kabsch_rotations(H) if kernels.COMPILED else _kabsch_svd(H)
-
-
-def _kabsch_svd(H: np.ndarray) -> np.ndarray:
-    """The reference of :func:`_kabsch`: ``U diag(1, 1, d) V^T`` from the SVD of each ``H_t = P_t^T Q``."""
-    Ul, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Ul @ Vt))
-    Ul[:, :, 2] *= d[:, None]
-    return Ul @ Vt
-
-
-def _normalise_frames(Z: np.ndarray, n_pred: int, ref: np.ndarray | None, rotate: bool
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Express frames ``Z`` ``(N, k, 3)`` in the frame of their first ``n_pred`` (observed) joints.
-
-    Subtracts the per-frame centroid of those joints and, with ``rotate``, rotates them
-    onto ``ref`` ``(n_pred, 3)`` (Kabsch; generalised Procrustes if ``ref`` is None).
-    Returns ``(local, centroid (N, 3), R (N, 3, 3), ref)``; room = local @ R^T + centroid.
-    """
-    cen = Z[:, :n_pred].mean(axis=1)
-    L = Z - cen[:, None, :]
-    if not rotate or n_pred < 3:
-        R = np.broadcast_to(np.eye(3), (Z.shape[0], 3, 3))
-        return L, cen, R, ref if ref is not None else L[:, :n_pred].mean(axis=0)
-    if ref is None:
-        sub = L[:: max(L.shape[0] // 150, 1), :n_pred]       # <= ~150 frames set the reference
-        ref = sub[0]
-        for _ in range(2):                                   # generalised Procrustes, 2 rounds
-            ref = (sub @ _kabsch(sub, ref)).mean(axis=0)
-    R = _kabsch(L[:, :n_pred], ref)
-    return L @ R, cen, R, ref
-
-
 def _fill_pattern(
     x: np.ndarray, obs_pat: np.ndarray, tgt: np.ndarray, frames: np.ndarray, ctx_frames: np.ndarray,
     tr: np.ndarray, tr_obs: np.ndarray, piece_frames: int, energy: float, r_max: int | None,
@@ -219,7 +182,7 @@ def _fill_pattern(
     # (centroid removed and, with ``rotate``, rotated onto a reference pose)
     rows = np.flatnonzero(rows)
     rows = rows[:: max(rows.size // max_train_frames, 1)]   # 120 Hz frames are redundant
-    Yl, _, _, ref = _normalise_frames(tr[rows][:, joints], n_pred, None, rotate)
+    Yl, _, _, ref = normalise_frames(tr[rows][:, joints], n_pred, None, rotate)
     Y = Yl.reshape(Yl.shape[0], -1)
     mu = Y.mean(axis=0)
     Y = Y - mu
@@ -239,7 +202,7 @@ def _fill_pattern(
     r = max(r, r0)
 
     def _b(rows_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        Zl, cen, R, _ = _normalise_frames(x[rows_idx][:, joints], n_pred, ref, rotate)
+        Zl, cen, R, _ = normalise_frames(x[rows_idx][:, joints], n_pred, ref, rotate)
         Z = Zl.reshape(Zl.shape[0], -1) - mu
         Z[:, o:] = 0.0                                       # the template
         return Z, cen, R
@@ -313,7 +276,7 @@ def fill_gaps(
     if rows.size == 0:
         return out, filled
     if layout == "pieces":
-        return _fill_gaps_pieces(x, obs, ts, rows, energy=energy, r_max=r_max, window=context_frames)
+        return fill_gaps_pieces(x, obs, ts, rows, energy=energy, r_max=r_max, window=context_frames)
     tr = ts.frames
     tr_obs = ts.observed
     T_len, J, _ = x.shape
@@ -374,7 +337,7 @@ def fill_gaps(
             resid[frames[qp], qj[qp]] = x[frames[qp], qj[qp]] - est[qp, col[qp]]
     filled &= need
     if boundary_correction and filled.any():
-        out = out + _residual_field(resid, obs, filled)
+        out = out + residual_field(resid, obs, filled)
     out[obs] = x[obs]
     return out, filled
 
@@ -483,55 +446,11 @@ def _fill_local(x, obs, need, probe, tr, tr_obs, enough, n_partners, min_observe
     pr = probe[qt, qj] & have
     resid[qt[pr], qj[pr]] = x[qt[pr], qj[pr]] - est[pr]
     if boundary_correction and filled.any():
-        out = out + _residual_field(resid, obs, filled)
+        out = out + residual_field(resid, obs, filled)
         if trust_kappa is not None:
             out = shrink_untrusted(out, obs, filled, resid, trust_kappa)
     out[obs] = x[obs]
     return out, filled
-
-
-def shrink_untrusted(positions: np.ndarray, observed: np.ndarray, filled: np.ndarray, resid: np.ndarray,
-                     kappa: float = 2.0) -> np.ndarray:
-    """Shrink each gap's fill toward linear interpolation when the model missed the gap's ends.
-
-    Not in the paper. Per joint and gap run: ``sigma`` = the larger norm (m) of the
-    model's residuals ``e = x - x_hat`` at the observed samples just before/after the
-    gap (``resid``, NaN where unknown), ``D`` = RMS distance (m) of the fill from the
-    linear interpolation between the gap's ends (hold at a take's edge), and the fill
-    becomes ``lin + s (fill - lin)`` with ``s = D^2 / (D^2 + (kappa sigma)^2)``: a model
-    that cannot reproduce the samples next to the gap keeps only departures from linear
-    much larger than its own error. Measured on Kinect takes (one limb blanked):
-    seated 3 s leg, whose partners are unrelated jittering joints, sigma 9-33 cm vs
-    D 10-13 cm; a still arm sigma 6-13 cm vs D 1-4 cm; arms moving inside the gap
-    with their hand tip seen sigma 1-4 cm vs D 8-35 cm (kept).
-    """
-    x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool)
-    fil = np.asarray(filled, dtype=bool) & ~obs
-    if not fil.any():
-        return x.copy()
-    T_len, J = obs.shape
-    jj = np.arange(J)[None, :]
-    base, prev, nxt = continuity_baseline(x, obs)
-    hp, hn = prev >= 0, nxt < T_len
-    pc, nc = np.clip(prev, 0, T_len - 1), np.clip(nxt, 0, T_len - 1)
-    ep = np.where(hp, np.linalg.norm(resid[pc, jj], axis=2), np.nan)
-    en = np.where(hn, np.linalg.norm(resid[nc, jj], axis=2), np.nan)
-    sig = np.fmax(ep, en)                                    # NaN where neither end has a residual
-    d = x - base
-    d2 = np.where(fil & (hp | hn), (d ** 2).sum(axis=2), 0.0)
-    # per run (joint, previous observed frame): mean |d|^2 over the run's filled samples
-    key = (prev + 1) * J + jj                                # unique per (run, joint)
-    tot = np.zeros((T_len + 1) * J)
-    cnt = np.zeros((T_len + 1) * J)
-    np.add.at(tot, key[fil], d2[fil])
-    np.add.at(cnt, key[fil], 1.0)
-    D2 = (tot / np.maximum(cnt, 1))[key]
-    s = D2 / np.maximum(D2 + (kappa * np.nan_to_num(sig)) ** 2, _EPS)
-    use = fil & (hp | hn) & np.isfinite(sig)
-    out = x.copy()
-    out[use] = (base + s[..., None] * d)[use]
-    return out
 
 
 def _partner_ranking(tr: np.ndarray, tr_obs: np.ndarray, min_common: float = 0.1) -> np.ndarray:
@@ -555,73 +474,3 @@ def _partner_ranking(tr: np.ndarray, tr_obs: np.ndarray, min_common: float = 0.1
     S[ia, ib] = sd
     S[ib, ia] = sd
     return np.argsort(S, axis=1, kind="stable")[:, : J - 1]
-
-
-def _residual_field(resid: np.ndarray, obs: np.ndarray, filled: np.ndarray) -> np.ndarray:
-    """Per filled sample, the probe residuals at the gap's two ends, linearly blended
-    over the gap (one end known: held constant); zero elsewhere. ``(T, J, 3)``."""
-    T_len = obs.shape[0]
-    idx = np.arange(T_len)[:, None]
-    prev, nxt = neighbour_observations(obs)
-    jj = np.arange(obs.shape[1])[None, :]
-    ep = np.where((prev >= 0)[..., None], resid[np.clip(prev, 0, T_len - 1), jj], np.nan)
-    en = np.where((nxt < T_len)[..., None], resid[np.clip(nxt, 0, T_len - 1), jj], np.nan)
-    w = ((idx - prev) / np.maximum(nxt - prev, 1))[..., None]
-    both = np.isfinite(ep).all(-1) & np.isfinite(en).all(-1)
-    corr = np.where(both[..., None], ep + w * (en - ep),
-                    np.where(np.isfinite(ep), ep, np.where(np.isfinite(en), en, 0.0)))
-    corr[~filled] = 0.0
-    return np.nan_to_num(corr)
-
-
-def _fill_gaps_pieces(x, obs, ts, rows, *, energy, r_max, window):
-    """Eq. (5)-(8) on a block of ``max(window, 3 x gap)`` frames centred on each gap run.
-
-    The template of Eq. (8) is the set of missing frames of the gap's joint in the
-    block; every column of every block-length training piece gets that template
-    (``A_i^(0)``), so ``F`` is learned for exactly that gap shape. ``V_B^(0)`` comes
-    from all of the block's trajectories complete on the present frames, with the
-    template applied.
-    Trajectories are offset by their mean over the present frames (same rule for the
-    training pieces). Joints absent from the whole block are left to the caller.
-    """
-    T_len, J, _ = x.shape
-    out = x.copy()
-    out[~obs] = np.nan
-    filled = np.zeros_like(obs)
-    cache: dict = {}
-    need = ~obs & (np.arange(T_len)[:, None] >= 0)
-    need[np.setdiff1d(np.arange(T_len), rows)] = False
-    for j in np.flatnonzero(need.any(axis=0)):               # loop over gap runs, not frames
-        for a, b in _runs(need[:, j]):
-            m = min(max(window, 3 * (b - a)), T_len)
-            s = int(np.clip(a - (m - (b - a)) // 2, 0, T_len - m))
-            blk = slice(s, s + m)
-            ob = obs[blk]
-            present = ob[:, j]
-            if present.sum() < 4:
-                continue
-            if m not in cache:
-                cache[m] = ts.windows(m)                     # (K, m, n_tr) complete pieces
-            A = cache[m]
-            if A.shape[0] == 0:
-                continue
-            w = present.astype(np.float64)[:, None]
-            cnt = present.sum()
-            Ac = A - (A * w).sum(axis=1, keepdims=True) / cnt       # offsets from present rows
-            A0 = Ac * w                                              # the template
-            cols_ok = ob[present].all(axis=0)                        # joints complete on present rows
-            Bb = x[blk][:, cols_ok].reshape(m, -1)
-            muB = (Bb * w).sum(axis=0, where=np.isfinite(Bb)) / cnt
-            B0 = np.where(w > 0, Bb - muB, 0.0)
-            lam = np.linalg.eigvalsh(np.einsum("kmc,kpc->mp", Ac, Ac))
-            r = min(choose_rank(lam, energy, r_max), int(cnt) - 1)
-            At, A0t = np.swapaxes(Ac, 1, 2), np.swapaxes(A0, 1, 2)
-            V, VB0, Ft = _eq4_from_grams(Ac @ At, A0 @ At, A0 @ A0t, B0 @ B0.T, r)  # Eq. (5)-(7)
-            c = int(np.searchsorted(np.flatnonzero(cols_ok), j))
-            est = V @ Ft.T @ VB0.T @ B0[:, 3 * c:3 * c + 3] + muB[3 * c:3 * c + 3]  # Eq. (8)
-            rr = np.arange(s, s + m)[~present]
-            out[rr, j] = est[~present]
-            filled[rr, j] = True
-    filled &= ~obs
-    return out, filled
