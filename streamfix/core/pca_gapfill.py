@@ -171,7 +171,9 @@ def _fill_pattern(
     min_train_frames: int, rotate: bool = True, max_train_frames: int = 1500,
 ) -> np.ndarray | None:
     """Eq. (1)-(4) for one template: joints ``tgt`` missing, ``obs_pat`` observed (the
-    matrix holds only these joints). Returns ``(len(frames), n_tgt, 3)`` or None."""
+    matrix holds only these joints) in ``frames``; ``ctx_frames``: the nearby frames where
+    ``obs_pat`` is observed, sorted, ``frames`` among them. Returns ``(len(frames), n_tgt, 3)``
+    or None."""
     miss_j = np.flatnonzero(tgt)
     pred_j, rows = _select_predictors(obs_pat, tgt, tr_obs, min_train_frames)
     if pred_j.size == 0 or rows.sum() < min_train_frames:
@@ -208,16 +210,11 @@ def _fill_pattern(
         return Z, cen, R
 
     # B^(0): this template's frames; its eigenbasis from them plus nearby frames where
-    # the same joints are observed (a few frames alone do not span r directions)
-    # this template's frames are among its context frames (their joints are observed there):
-    # normalised once, with the context
+    # the same joints are observed (a few frames alone do not span r directions). The
+    # template's frames are among those (its joints are observed there): normalised once
+    Bctx, cen_ctx, R_ctx = _b(ctx_frames)
     at = np.searchsorted(ctx_frames, frames)
-    if ctx_frames.size and (at < ctx_frames.size).all() and (ctx_frames[np.minimum(at, ctx_frames.size - 1)] == frames).all():
-        Bctx, cen_ctx, R_ctx = _b(ctx_frames)
-        B0, cen, R = Bctx[at], cen_ctx[at], R_ctx[at]
-    else:
-        B0, cen, R = _b(frames)
-        Bctx = _b(ctx_frames)[0] if ctx_frames.size else B0
+    B0, cen, R = Bctx[at], cen_ctx[at], R_ctx[at]
     GB0 = Bctx.T @ Bctx
     GB0[o:, :] = 0.0
     GB0[:, o:] = 0.0

@@ -137,7 +137,6 @@ the overload policy (:mod:`.degradation`).
 
 from __future__ import annotations
 
-import itertools
 import threading
 import time
 from typing import Any, Callable, Sequence
@@ -307,12 +306,8 @@ class StreamEngine:
         # pool count their bodies together: counted per engine, the k-th body of every stream
         # got the same phase and their windows queued behind each other on the same frame
         # (bench_service: five 6-body streams put five windows on 6 of 10 frames and none on 4)
-        if body_ordinals is not None:
-            self._body_ordinal = body_ordinals
-        elif self._pool is not None:
-            self._body_ordinal = self._pool.next_body_ordinal
-        else:
-            self._body_ordinal = itertools.count().__next__
+        # (None: this engine's own count, counters["bodies_seen"])
+        self._body_ordinal = body_ordinals or (self._pool.next_body_ordinal if self._pool is not None else None)
 
     # ------------------------------------------------------------------ public API
     def push(self, frame: SkeletonFrame, fill: bool = True) -> list[tuple[str, SkeletonFrame]]:
@@ -571,7 +566,8 @@ class StreamEngine:
                 body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live)
                 lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
                 body.live_path.set_bone_lengths(lengths)
-                body.phase = hop_phase(self._body_ordinal(), self.hop)
+                ordinal = self.counters["bodies_seen"] if self._body_ordinal is None else self._body_ordinal()
+                body.phase = hop_phase(ordinal, self.hop)
                 st.bodies[bid] = body
                 self.counters["bodies_seen"] += 1
         live_bodies: list[BodyFrame] = []
@@ -723,7 +719,8 @@ class StreamEngine:
 
     def _solve_queued(self, job: Job) -> None:
         """A queued window, in a thread of the shared pool (:mod:`~streamfix.streaming.solver_pool`):
-        solve it unless it was abandoned or the engine closed; never raises."""
+        solve it unless it was abandoned or the engine closed; a failed solve is recorded on
+        the job, never raised (only an ``on_window_done`` listener's error reaches the pool)."""
         try:
             if job.status == "pending" and not self._closed:
                 self._run_job(job)
@@ -735,12 +732,8 @@ class StreamEngine:
                 self._inflight -= 1
                 self._done_total += 1
                 self._cond.notify_all()
-            wake = self.on_window_done
-            if wake is not None:
-                try:
-                    wake()
-                except Exception:  # noqa: BLE001 - a listener must not take the pool thread down
-                    pass
+            if self.on_window_done is not None:
+                self.on_window_done()  # a listener that raises is logged by the pool, which goes on
 
     # ------------------------------------------------------------------ results
     def _drain(self, st: StreamState, out: list) -> None:
