@@ -167,12 +167,16 @@ def test_bone_spread_kernel_is_bit_identical(kinect, monkeypatch):
     assert pipeline._bone_spread(x, observed, bones, 10.0) == 0.0   # no bone long enough
 
 
-def test_selection_median_is_the_sorted_median_bit_for_bit():
-    """The bone spread's medians come from an in-place selection, not a sort: the same value,
-    for odd and even counts, ties and constant runs, reading only the first n values."""
+@pytest.mark.parametrize("median, keeps_buffer", [("_select_median_compiled", False), ("_rank_median_compiled", True)])
+def test_compiled_medians_are_the_sorted_median_bit_for_bit(median, keeps_buffer):
+    """The bone spread's medians come from an in-place selection and the live gate's (7-21
+    values in a new order every frame) from counting ranks, not a sort: the same value for
+    odd and even counts, ties and constant runs, reading only the first n values (the
+    rank count leaves them in place)."""
+    fn = getattr(kernels, median)
     rng = np.random.default_rng(0)
     for trial in range(3000):
-        n = int(rng.integers(1, 130))
+        n = int(rng.integers(1, 130 if not keeps_buffer else 40))
         a = rng.normal(size=n)
         if trial % 3 == 0:
             a = np.round(a, 1)  # ties
@@ -180,7 +184,9 @@ def test_selection_median_is_the_sorted_median_bit_for_bit():
             a[:] = 0.25  # all equal
         s = np.sort(a)
         buf = np.concatenate([a, rng.normal(size=4) - 10.0])  # values beyond n are not read
-        assert kernels._select_median_compiled(buf, n) == (s[(n - 1) // 2] + s[n // 2]) / 2.0
+        before = buf.copy()
+        assert fn(buf, n) == (s[(n - 1) // 2] + s[n // 2]) / 2.0
+        assert np.array_equal(buf, before) or not keeps_buffer
 
 
 def test_gauss_newton_kernel_matches_lapack_step(kinect, monkeypatch):
@@ -265,7 +271,7 @@ def test_warm_up_compiles_every_kernel():
     dispatchers = [f for f in vars(kernels).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
     # helpers called only from inside other kernels are compiled with them
     helpers = ("_solve3_first_py", "_sorted_median", "_tukey_weights_loop", "_sorted_shorth_mode", "_sorted_finite",
-               "_select_inplace", "_select_median")
+               "_select_inplace", "_select_median", "_rank_median")
     called = [f for f in dispatchers if f.py_func.__name__ not in helpers]
     assert len(called) >= 8
     assert all(f.signatures for f in called)  # compiled (or loaded), so no first-call stall
