@@ -23,7 +23,7 @@ into a single compiled loop over frames and channels:
   instead of one LAPACK call on a block-diagonal band (same systems, rounding apart);
 * :func:`shorth_mode`: the robust bone-length mode of
   :func:`streamfix.core.isometry._shorth_mode`, bit for bit, and
-  :func:`length_mode_with_support`, that mode refined and its support counted
+  :func:`length_mode_with_support`, the densest mode refined and its support counted
   (:func:`streamfix.core.isometry.length_mode_with_support`) from the same sort;
 * :func:`theil_sen_line`: the live path's robust line through the last raw samples
   (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
@@ -993,6 +993,36 @@ def _sorted_shorth_mode(s, fraction):  # pragma: no cover - compiled
 _sorted_shorth_mode_compiled = _jit(_sorted_shorth_mode)
 
 
+def _sorted_densest_mode(s, half_width):  # pragma: no cover - compiled
+    """:func:`streamfix.core.isometry.densest_mode` of the ascending finite samples ``s`` (at
+    least one): the counts within ``half_width`` by two pointers, as the reference's searches."""
+    n = len(s)
+    count = np.empty(n, dtype=np.int64)
+    lo = 0
+    hi = 0
+    best = 0
+    for i in range(n):
+        while hi < n and s[hi] <= s[i] + half_width:
+            hi += 1
+        while s[lo] < s[i] - half_width:
+            lo += 1
+        count[i] = hi - lo
+        best = max(best, hi - lo)
+    ties = 0
+    for i in range(n):
+        ties += count[i] == best
+    want = ties // 2  # the middle one of the tied samples
+    for i in range(n):
+        if count[i] == best:
+            if want == 0:
+                return s[i]
+            want -= 1
+    return s[n - 1]
+
+
+_sorted_densest_mode_compiled = _jit(_sorted_densest_mode)
+
+
 def _sorted_finite(values, b, buf):  # pragma: no cover - compiled
     """Column ``b``'s finite values, sorted ascending in ``buf[:n]``; returns ``n``."""
     n = 0
@@ -1030,7 +1060,7 @@ def shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:
     return out
 
 
-def _length_mode_loop(values, fraction, refine, tol, lengths, support):  # pragma: no cover - compiled
+def _length_mode_loop(values, half_width, refine, tol, lengths, support):  # pragma: no cover - compiled
     buf = np.empty(values.shape[0])
     for b in range(values.shape[1]):
         n = _sorted_finite_compiled(values, b, buf)
@@ -1039,7 +1069,7 @@ def _length_mode_loop(values, fraction, refine, tol, lengths, support):  # pragm
             support[b] = 0
             continue
         s = buf[:n]
-        est = _sorted_shorth_mode_compiled(s, fraction)
+        est = _sorted_densest_mode_compiled(s, half_width)
         if refine >= 0.0:  # the median of the samples within refine of the mode: a run of s
             lo, hi = 0, n
             while lo < n and not abs(s[lo] - est) <= refine:
@@ -1060,10 +1090,10 @@ _length_mode_compiled = _jit(_length_mode_loop)
 
 
 def length_mode_with_support(
-    values: np.ndarray, fraction: float, tolerance_m: float, refine_m: float | None
+    values: np.ndarray, half_width_m: float, tolerance_m: float, refine_m: float | None
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`streamfix.core.isometry.length_mode_with_support` of ``values`` ``(T, B)``
-    (metres, NaN = no sample), bit for bit, from one sort per column: the shorth mode,
+    (metres, NaN = no sample), bit for bit, from one sort per column: the densest mode,
     the median of the sorted run within ``refine_m`` of it, the count within
     ``tolerance_m``. The engine calls it every window on 10 s of bone lengths. Needs numba."""
     if _length_mode_compiled is None:
@@ -1072,7 +1102,7 @@ def length_mode_with_support(
     lengths = np.empty(values.shape[1])
     support = np.empty(values.shape[1], dtype=np.int64)
     refine = -1.0 if refine_m is None else float(refine_m)
-    _length_mode_compiled(values, float(fraction), refine, float(tolerance_m), lengths, support)
+    _length_mode_compiled(values, float(half_width_m), refine, float(tolerance_m), lengths, support)
     return lengths, support
 
 
@@ -1227,7 +1257,7 @@ def warm_up() -> None:
     gauss_newton_update(finite, finite, np.zeros_like(finite), 1.0, 10.0, bones, lengths, np.ones((2, 2)))
     bone_spread_deviations(finite, np.ones((12, 3), dtype=bool), bones, 0.01)
     shorth_mode(x[:, :, 0], 0.5)
-    length_mode_with_support(x[:, :, 0], 0.1, 0.005, 0.02)
+    length_mode_with_support(x[:, :, 0], 0.01, 0.005, 0.02)
     kabsch_rotations(finite)
     pi, pj = (np.ascontiguousarray(a) for a in np.triu_indices(7, 1))
     theil_sen_line(x[:7], np.arange(7.0), pi, pj)

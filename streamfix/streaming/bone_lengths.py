@@ -2,7 +2,7 @@
 
 The engine's main thread only files each frame's raw bone lengths into the body's
 memory (:func:`record_raw_bones`, a few array operations per hop) and hands the window
-job a :class:`LengthSources` snapshot; the estimate itself (two shorth modes over up to
+job a :class:`LengthSources` snapshot; the estimate itself (two densest modes over up to
 ``BONE_MEMORY_S`` of samples and the left/right pooling, the costliest step of
 scheduling a window) runs where the window is solved (:meth:`LengthSources.resolve`):
 in threaded mode on the worker, whose compiled kernels release the GIL, so the live
@@ -54,7 +54,7 @@ def record_raw_bones(body: Body, bones: np.ndarray) -> None:
 def raw_history_lengths(
     raw_bones: np.ndarray, raw_bones_seen: np.ndarray, mirror_bones: np.ndarray, rate_hz: float
 ) -> np.ndarray | None:
-    """``(B,)`` shorth-mode bone lengths (m) over the remembered raw samples, if well supported.
+    """``(B,)`` densest-mode bone lengths (m) over the remembered raw samples, if well supported.
 
     ``raw_bones`` / ``raw_bones_seen`` ``(N, B)``: per-frame lengths with both ends tracked /
     observed (NaN = none). Frames where both ends of a bone are *tracked* count; a bone
@@ -125,7 +125,7 @@ def length_sources(body: Body, bones: np.ndarray, mirror_bones: np.ndarray, rate
                    fixed_lengths: np.ndarray | None) -> LengthSources:
     """What the body's bone lengths come from (resolved where the window is solved).
 
-    ``fixed_lengths`` if configured; else the shorth mode of the last ``BONE_MEMORY_S``
+    ``fixed_lengths`` if configured; else the densest mode of the last ``BONE_MEMORY_S``
     of raw input when well supported (:func:`raw_history_lengths`); else the median over
     the body's last ``BONE_MEMORY_S`` (10 s) of *clean* output (robust: the window solver
     already removed the outliers, while a median over raw corrupted input is biased by
