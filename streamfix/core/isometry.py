@@ -230,6 +230,12 @@ def estimate_bone_lengths(
       the densest cluster, which the mode finds (measured below 1 mm).
     * ``'median'``: the per-bone median over frames (robust while < 50 % are corrupted).
 
+    The window solver's own estimate, for a window with no lengths given. The engine's
+    per-body lengths from a sensor's history use :func:`length_mode_with_support` (the
+    densest mode), which weighs a cluster by its samples; here, under the paper protocol's
+    corruption of most frames, the narrowest cluster is the clean one (the densest mode
+    raised the 80 % rows of ``benchmarks/bench_accuracy.py``).
+
     A bone never observed gets NaN.
     """
     p = np.asarray(positions, dtype=np.float64)
