@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from streamfix.frames import BodyFrame, SkeletonFrame
 from streamfix.io import read_motion
 from streamfix.streaming.engine import EngineConfig, StreamEngine, WindowOutput
 from streamfix.streaming.offline import clean_motion, motion_frames
@@ -221,3 +222,48 @@ def test_push_many_gives_what_push_gives_frame_by_frame(kinect, schedule):
                 np.testing.assert_array_equal(x.confidence, y.confidence)
                 np.testing.assert_array_equal(x.recovered, y.recovered)
         assert c["joints_recovered"] == counters["joints_recovered"] and c["clean_out"] == counters["clean_out"]
+
+
+@pytest.mark.parametrize("schedule", ["file", "serve"])
+def test_push_arrays_gives_what_push_gives_frame_by_frame(kinect, schedule):
+    """A file's frames as arrays (push_arrays, what clean_motion feeds: no frame objects for
+    the runs) emit the clean frames push() emits one by one, through dropped frames, a 5 s
+    discontinuity, NaN joints and a frame out of order; arrays of the wrong shape are
+    refused whole, naming the joint count, before any frame is taken."""
+    cfg = (EngineConfig.for_files(kinect.rate_hz, window=90, hop=40, lookahead=60) if schedule == "file"
+           else EngineConfig(rate_hz=kinect.rate_hz))
+    period = int(round(1e9 / kinect.rate_hz))
+    pos = np.concatenate([kinect.positions] * 3)  # every ring row is reused
+    conf = np.concatenate([kinect.confidence] * 3)
+    times = np.arange(len(pos), dtype=np.int64) * period
+    times[40:] += 2 * period       # two dropped frames
+    times[90:] += 5_000_000_000    # a 5 s discontinuity
+    times[200] = times[198]        # out of order: dropped as late
+    pos[20:25, 3:6] = np.nan       # NaN joints
+    seq0 = 1000
+
+    def clean_of(out):
+        return [(f.seq, f.sensor_time_ns, f.bodies[0].positions, f.bodies[0].recovered)
+                for kind, f in out if kind == "clean"]
+
+    one = StreamEngine(kinect.skeleton, cfg)
+    ref = []
+    for k in range(len(pos)):
+        ref += one.push(SkeletonFrame("offline", seq0 + k, int(times[k]), kinect.skeleton.name,
+                                      [BodyFrame(0, pos[k], conf[k])]))
+    ref += one.flush()
+    arrays = StreamEngine(kinect.skeleton, cfg)
+    got = []
+    for start in range(0, len(pos), 97):  # in chunks, as clean_motion feeds it
+        arrays.push_arrays("offline", 0, pos[start:start + 97], conf[start:start + 97], times[start:start + 97],
+                           seq0 + start, got)
+    got += arrays.flush()
+    a, b = clean_of(got), clean_of(ref)
+    assert [x[:2] for x in a] == [x[:2] for x in b] and len(a) == len(pos) - 1 + one.counters["frames_filled"]
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x[2], y[2])
+        np.testing.assert_array_equal(x[3], y[3])
+    assert arrays.counters["frames_dropped_late"] == one.counters["frames_dropped_late"] == 1
+    with pytest.raises(ValueError, match=f"expected {kinect.n_joints} joints"):
+        arrays.push_arrays("other", 0, pos[:10, :5], conf[:10, :5], times[:10])
+    assert "other" not in arrays.streams

@@ -364,13 +364,45 @@ class StreamEngine:
         out = [] if out is None else out
         i, n = 0, len(frames)
         while i < n:
-            run = self._plain_run(frames, i) if self._batch_clean else 0
-            if run:
-                self._push_run(frames[i:i + run])
-                i += run
+            k = self._one_body_block(frames, i) if self._batch_clean else 0
+            if k:
+                block = frames[i:i + k]
+                self._push_block(
+                    block[0].stream_id, block[0].bodies[0].body_id,
+                    np.stack([np.asarray(f.bodies[0].positions, dtype=np.float64) for f in block]),
+                    np.stack([np.asarray(f.bodies[0].confidence, dtype=np.float64) for f in block]),
+                    np.array([int(f.sensor_time_ns) for f in block], dtype=np.int64),
+                    np.array([int(f.seq) for f in block], dtype=np.int64), out, block)
+                i += k
             else:
                 out.extend(self.push(frames[i]))
                 i += 1
+        return out
+
+    def push_arrays(self, stream_id: str, body_id: int, positions: np.ndarray, confidence: np.ndarray,
+                    times_ns: np.ndarray, seq0: int = 0,
+                    out: list[tuple[str, SkeletonFrame]] | None = None) -> list[tuple[str, SkeletonFrame]]:
+        """One body's frames as arrays, for files: the outputs of :meth:`push_many` on the frames
+        ``SkeletonFrame(stream_id, seq0 + k, times_ns[k], skeleton, [BodyFrame(body_id,
+        positions[k], confidence[k])])``, appended to ``out`` (a new list if None), which is returned.
+
+        ``positions`` ``(n, J, 3)`` m, ``confidence`` ``(n, J)``, ``times_ns`` ``(n,)`` sensor
+        time (ns). Offline, the runs :meth:`push_many` writes as arrays are slices of these,
+        and no frame object is made for them: a file's frames as objects cost more than the
+        bookkeeping they feed. Arrays of the wrong shape are refused before any frame is
+        taken (ValueError naming the expected joint count).
+        """
+        out = [] if out is None else out
+        J = self.n_joints
+        pos = np.asarray(positions, dtype=np.float64)
+        conf = np.asarray(confidence, dtype=np.float64)
+        times = np.asarray(times_ns, dtype=np.int64)
+        n = len(times)
+        if times.ndim != 1 or pos.shape != (n, J, 3) or conf.shape != (n, J):
+            raise ValueError(f"stream {stream_id!r} body {body_id}: expected {J} joints ({self.skeleton.name}) as "
+                             f"({n}, {J}, 3) positions and ({n}, {J}) confidences for {n} times, got "
+                             f"{pos.shape} and {conf.shape}")
+        self._push_block(stream_id, body_id, pos, conf, times, seq0 + np.arange(n, dtype=np.int64), out)
         return out
 
     def flush(self, timeout: float | None = 10.0) -> list[tuple[str, SkeletonFrame]]:
@@ -485,48 +517,74 @@ class StreamEngine:
         return st.last_time_ns is not None and int(frame.sensor_time_ns) < st.last_time_ns
 
     # ------------------------------------------------------------------ per frame
-    def _plain_run(self, frames: Sequence[SkeletonFrame], i: int) -> int:
-        """How many frames from ``frames[i]`` on :meth:`_push_run` may take (0: none): frames
-        of one existing stream whose only body, already tracked, is each frame's only body,
-        valid, in order, with no drop to fill and no window due."""
+    def _one_body_block(self, frames: Sequence[SkeletonFrame], i: int) -> int:
+        """How many frames from ``frames[i]`` on are one body of one stream (the same body id,
+        the only body of each frame) that :meth:`push` takes (the skeleton's shapes)."""
         first = frames[i]
-        st = self.streams.get(first.stream_id)
-        if st is None or st.ending or len(st.bodies) != 1:
+        if len(first.bodies) != 1:
             return 0
-        (bid, body), = st.bodies.items()
-        seq, t_ns = st.last_in_seq, st.last_time_ns
-        limit = body.next_end - body.count - 1  # the frame that completes a window: push()
-        max_gap = self.cfg.drop_gap_factor * self.period_ns if self.cfg.fill_drops else np.inf
-        run = 0
-        for frame in frames[i:i + max(0, limit)]:
-            if frame.stream_id != st.stream_id or len(frame.bodies) != 1 or frame.bodies[0].body_id != bid:
-                break
-            if (seq is not None and int(frame.seq) <= seq) or (t_ns is not None and
-                                                               not 0 <= int(frame.sensor_time_ns) - t_ns <= max_gap):
+        sid, bid = first.stream_id, first.bodies[0].body_id
+        k = 0
+        for frame in frames[i:]:
+            if frame.stream_id != sid or len(frame.bodies) != 1 or frame.bodies[0].body_id != bid:
                 break
             try:
                 check_frame(frame, self.skeleton)
             except ValueError:
                 break  # push() refuses it, counted
-            seq, t_ns = int(frame.seq), int(frame.sensor_time_ns)
-            run += 1
-        return run
+            k += 1
+        return k
 
-    def _push_run(self, frames: Sequence[SkeletonFrame]) -> None:
-        """:meth:`_advance` for a run of plain frames (:meth:`_plain_run`), as arrays: the same
-        ring rows, body rows and pending frames, and no drain (none is due within the run)."""
-        st = self.streams[frames[0].stream_id]
+    def _push_block(self, stream_id: str, body_id: int, pos: np.ndarray, conf: np.ndarray, times: np.ndarray,
+                    seqs: np.ndarray, out: list, frames: Sequence[SkeletonFrame] | None = None) -> None:
+        """Frames of one body of one stream, as arrays (shapes checked): offline, runs of plain
+        frames (:meth:`_plain_run`) into the ring and the body's rows at once (:meth:`_store_run`),
+        every other frame through :meth:`push` (``frames[k]`` when given, else made from the arrays)."""
+        i, n = 0, len(times)
+        while i < n:
+            run = self._plain_run(stream_id, body_id, times, seqs, i) if self._batch_clean else 0
+            if run:
+                self._store_run(self.streams[stream_id], pos[i:i + run], conf[i:i + run], times[i:i + run],
+                                int(seqs[i + run - 1]))
+                i += run
+            else:
+                frame = frames[i] if frames is not None else SkeletonFrame(
+                    stream_id, int(seqs[i]), int(times[i]), self.skeleton.name, [BodyFrame(body_id, pos[i], conf[i])])
+                out.extend(self.push(frame))
+                i += 1
+
+    def _plain_run(self, stream_id: str, body_id: int, times: np.ndarray, seqs: np.ndarray, i: int) -> int:
+        """How many of a block's frames from ``i`` on :meth:`_store_run` may take (0: none): the
+        stream exists and ``body_id`` is its only body, already tracked; the frames are in order,
+        with no drop to fill and no window due."""
+        st = self.streams.get(stream_id)
+        if st is None or st.ending or len(st.bodies) != 1 or body_id not in st.bodies:
+            return 0
+        body = st.bodies[body_id]
+        limit = max(0, body.next_end - body.count - 1)  # the frame that completes a window: push()
+        t, q = times[i:i + limit], seqs[i:i + limit]
+        if not len(t):
+            return 0
+        t_prev = np.concatenate([[t[0] if st.last_time_ns is None else st.last_time_ns], t[:-1]])
+        q_prev = np.concatenate([[q[0] - 1 if st.last_in_seq is None else st.last_in_seq], q[:-1]])
+        gap = t - t_prev
+        max_gap = self.cfg.drop_gap_factor * self.period_ns if self.cfg.fill_drops else np.inf
+        bad = np.flatnonzero((q <= q_prev) | (gap < 0) | (gap > max_gap))
+        return int(bad[0]) if len(bad) else len(t)
+
+    def _store_run(self, st: StreamState, positions: np.ndarray, confidence: np.ndarray, times: np.ndarray,
+                   last_seq: int) -> None:
+        """A run of plain frames of the stream's one body into the ring and the body's rows: the
+        same ring rows, body rows and pending frames as :meth:`_advance` frame by frame, and no
+        drain (none is due within the run)."""
         (bid, body), = st.bodies.items()
-        n = len(frames)
-        positions = np.stack([np.asarray(f.bodies[0].positions, dtype=np.float64) for f in frames])
-        confidence = np.stack([np.asarray(f.bodies[0].confidence, dtype=np.float64) for f in frames])
-        times = np.array([int(f.sensor_time_ns) for f in frames], dtype=np.int64)
+        n = len(times)
         self.counters["frames_in"] += n
-        for f in frames:
+        for t_ns in times.tolist():
             st.g += 1
-            st.pending[st.g] = PendingFrame(st.seq0 + st.g, int(f.sensor_time_ns), False, [bid])
+            st.pending[st.g] = PendingFrame(st.seq0 + st.g, t_ns, False, [bid])
         st.last_present = [bid]
-        st.last_in_seq, st.last_time_ns = int(frames[-1].seq), int(times[-1])
+        st.last_in_seq, st.last_time_ns = int(last_seq), int(times[-1])
         n0 = body.count
         raw, conf, valid = body.ring.push_many(positions, confidence, times)
         rows = (n0 + np.arange(n)) % body.cap

@@ -1,7 +1,8 @@
 """Offline cleaning of a whole :class:`~streamfix.motion.Motion` through the streaming engine.
 
-:func:`clean_motion` feeds the motion frame by frame into a synchronous
-:class:`~streamfix.streaming.engine.StreamEngine` (one body, id 0) and collects its
+:func:`clean_motion` feeds the motion's arrays into a synchronous
+:class:`~streamfix.streaming.engine.StreamEngine` (one body, id 0; ``push_arrays``, the
+frames ``motion_frames`` would make, without making them) and collects its
 ``clean`` output: with ``serve``'s schedule (the :class:`EngineConfig` defaults) a file
 cleaned offline equals what ``streamfix serve`` emits on ``clean`` for the same frames;
 ``streamfix clean`` passes the file schedule (:meth:`EngineConfig.for_files`). The result
@@ -11,7 +12,6 @@ per-frame work is skipped (its output would be thrown away; ``clean`` is the sam
 """
 from __future__ import annotations
 
-import itertools
 from dataclasses import replace
 from typing import Callable
 
@@ -25,10 +25,15 @@ from .solver_api import WindowSolverError
 __all__ = ["WindowSolverError", "clean_motion", "motion_frames"]
 
 
+def sensor_times_ns(motion: Motion) -> np.ndarray:
+    """``(T,)`` int64: the motion's timestamps (s) as the frames' sensor times (ns)."""
+    return np.round(np.asarray(motion.timestamps) * 1e9).astype(np.int64)
+
+
 def motion_frames(motion: Motion, stream_id: str = "offline", body_id: int = 0, seq0: int = 0):
     """Yield the motion as one-body :class:`SkeletonFrame` objects (sensor time in ns)."""
     name = motion.skeleton.name
-    t_ns = np.round(np.asarray(motion.timestamps) * 1e9).astype(np.int64)
+    t_ns = sensor_times_ns(motion)
     for i in range(motion.n_frames):
         yield SkeletonFrame(
             stream_id, seq0 + i, int(t_ns[i]), name, [BodyFrame(body_id, motion.positions[i], motion.confidence[i])]
@@ -41,12 +46,14 @@ def _run_engine(motion: Motion, cfg: EngineConfig, window_solver, topic: str, pr
     kept: list[SkeletonFrame] = []
     total = motion.n_frames
     step = max(1, total // 100)
-    frames = motion_frames(motion)
+    t_ns = sensor_times_ns(motion)  # as motion_frames makes them
+    positions, confidence = np.asarray(motion.positions), np.asarray(motion.confidence)
     for start in range(0, total, step):  # a hundredth at a time: the engine takes runs of frames
-        chunk = list(itertools.islice(frames, step))
-        kept.extend(out for kind, out in engine.push_many(chunk) if kind == topic)
+        end = min(total, start + step)
+        got = engine.push_arrays("offline", 0, positions[start:end], confidence[start:end], t_ns[start:end], start)
+        kept.extend(out for kind, out in got if kind == topic)
         if progress is not None:
-            progress(start + len(chunk), total)
+            progress(end, total)
     kept.extend(out for kind, out in engine.flush() if kind == topic)
     return kept, engine.metrics()
 
