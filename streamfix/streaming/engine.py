@@ -524,16 +524,17 @@ class StreamEngine:
         if len(first.bodies) != 1:
             return 0
         sid, bid = first.stream_id, first.bodies[0].body_id
-        k = 0
-        for frame in frames[i:]:
+        end = i
+        while end < len(frames):  # by index: slicing the rest of the list for every block copies it
+            frame = frames[end]
             if frame.stream_id != sid or len(frame.bodies) != 1 or frame.bodies[0].body_id != bid:
                 break
             try:
                 check_frame(frame, self.skeleton)
             except ValueError:
                 break  # push() refuses it, counted
-            k += 1
-        return k
+            end += 1
+        return end - i
 
     def _push_block(self, stream_id: str, body_id: int, pos: np.ndarray, conf: np.ndarray, times: np.ndarray,
                     seqs: np.ndarray, out: list, frames: Sequence[SkeletonFrame] | None = None) -> None:
