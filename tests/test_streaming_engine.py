@@ -344,6 +344,36 @@ def test_threaded_equals_synchronous_when_keeping_up(kinect):
     assert np.array_equal(body_array(threaded), body_array(sync))
 
 
+def test_clean_on_poll_leaves_the_clean_work_to_poll_with_the_same_output(kinect):
+    """``clean_on_poll`` (serve): push returns the live frame only, poll the clean frames,
+    which are those of the synchronous engine; a push that finds the last frame not drained
+    (no poll between) drains it first, so nothing waits on a caller that never polls."""
+    cfg = EngineConfig(rate_hz=30.0, degrade=False, max_pending_windows=10**6, max_clean_delay_s=1e6)
+    sync = split(run(StreamEngine(KINECT_V2, cfg, savgol_solver), frames_of(kinect, uniform=True))[0])[1]
+    engine = ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver, body_ordinals=itertools.count().__next__,
+                                  clean_on_poll=True)
+    out = []
+    for f in frames_of(kinect, uniform=True):
+        got = engine.push(f)
+        assert [k for k, _ in got] == ["live"]
+        out += got + engine.poll()
+    out += engine.flush()
+    engine.close()
+    clean = split(out)[1]
+    assert [f.seq for f in clean] == [f.seq for f in sync]
+    assert np.array_equal(body_array(clean), body_array(sync))
+
+    engine = ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver, body_ordinals=itertools.count().__next__,
+                                  clean_on_poll=True)
+    pushed = [engine.push(f) for f in frames_of(kinect, uniform=True)]  # never polled
+    assert all([k for k, _ in got][-1] == "live" for got in pushed)
+    assert any(k == "clean" for got in pushed for k, _ in got)  # drained by the next push
+    clean = split([o for got in pushed for o in got] + engine.flush())[1]
+    engine.close()
+    assert [f.seq for f in clean] == [f.seq for f in sync]
+    assert np.array_equal(body_array(clean), body_array(sync))
+
+
 def test_config_rejects_inconsistent_window_hop_lookahead():
     with pytest.raises(ValueError, match="hop"):
         EngineConfig(window=60, hop=20, lookahead=15)

@@ -77,7 +77,8 @@ def _streamfix_engine(skeleton: Skeleton, rate_hz: float, options: EngineOptions
 
         solver = ProcessWindowSolver()  # takes the child prepare_streamfix_engine started, else forks one
     try:
-        return StreamEngine(skeleton, _engine_config(rate_hz, options), solver)
+        # the service polls every engine after handling what arrived: clean work waits for that
+        return StreamEngine(skeleton, _engine_config(rate_hz, options), solver, clean_on_poll=True)
     except BaseException:
         if solver is not None:
             solver.close()

@@ -196,6 +196,7 @@ class StreamState:
         self.bodies: dict[int, Body] = {}  # active bodies
         self.ending: list[Body] = []  # bodies that left, finishing their last window
         self.last_present: list[int] = []  # body ids of the newest real frame
+        self.undrained = False  # a frame pushed since the last drain (engine clean_on_poll)
         self.pending: dict[int, PendingFrame] = {}
         self.emit_g = 0
         self.retired: dict[int, np.ndarray | None] = {}

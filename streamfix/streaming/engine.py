@@ -211,6 +211,12 @@ class StreamEngine:
     ``on_window_done`` (attribute, threaded mode): called with no arguments from the solver
     thread each time one of this engine's windows leaves the pool, so a caller that sleeps
     between inputs can :meth:`poll` the clean frames at once.
+    ``clean_on_poll`` (threaded mode): :meth:`push` returns the live frame only and leaves
+    blending finished windows, finalising and emitting clean frames to :meth:`poll`, so a
+    caller with several streams' frames to handle sends every live frame before any of that
+    work (``serve``: it was 40 % of a push, and the last of five 6-body streams arriving
+    together waited for the other four's). A stream holds at most one frame undrained: a
+    push that finds one drains it first.
     """
 
     def __init__(
@@ -221,6 +227,7 @@ class StreamEngine:
         *,
         threaded: bool | None = None,
         body_ordinals: Callable[[], int] | None = None,
+        clean_on_poll: bool = False,
     ) -> None:
         self.skeleton = skeleton
         self.cfg = config if config is not None else EngineConfig()
@@ -285,6 +292,7 @@ class StreamEngine:
         # finalised and emitted in runs, when a window is due and at the end, not one per push
         # (the same values: every window still sees the state a per-push drain would leave)
         self._batch_clean = not threaded and not self.cfg.live_output
+        self._clean_on_poll = bool(clean_on_poll) and bool(threaded)
         self._closed = False
         if threaded:
             import sys
@@ -344,7 +352,7 @@ class StreamEngine:
         st.last_in_seq = int(frame.seq)
         self._advance(st, frame, int(frame.sensor_time_ns), out)
         st.last_time_ns = int(frame.sensor_time_ns)
-        if self.threaded:  # windows of other streams may have finished too
+        if self.threaded and not self._clean_on_poll:  # windows of other streams may have finished too
             for other in self.streams.values():
                 if other is not st:
                     self._drain(other, out)
@@ -606,10 +614,17 @@ class StreamEngine:
             inputs = {b.body_id: b for b in frame.bodies}
             present_ids = [b.body_id for b in frame.bodies]
             st.last_present = present_ids
-        # drain after this frame: always, or offline only when a window is due or a body leaves
-        drain = not self._batch_clean or self._due(st, present_ids)
-        if drain and self._batch_clean:
-            self._drain(st, out)  # first what a drain after every push would have left
+        # drain after this frame: always, or offline only when a window is due or a body leaves,
+        # or (clean_on_poll) never: poll() drains, or the stream's next frame first
+        if self._clean_on_poll:
+            drain = False
+            if st.undrained:
+                self._drain(st, out)
+            st.undrained = True
+        else:
+            drain = not self._batch_clean or self._due(st, present_ids)
+            if drain and self._batch_clean:
+                self._drain(st, out)  # first what a drain after every push would have left
         pend = PendingFrame(seq, t_ns, frame is None, present_ids)
         st.pending[g] = pend
         if not present_ids:
@@ -797,6 +812,7 @@ class StreamEngine:
     # ------------------------------------------------------------------ results
     def _drain(self, st: StreamState, out: list) -> None:
         """Blend finished windows, finalise frames, retire finished bodies, emit clean frames."""
+        st.undrained = False
         limit = self.cfg.lookahead + 1 + self._backlog
         for body in list(st.bodies.values()) + list(st.ending):
             if self.threaded:
@@ -894,5 +910,6 @@ class ThreadedStreamEngine(StreamEngine):
     """:class:`StreamEngine` whose windows are solved in the shared solver pool (live service mode)."""
 
     def __init__(self, skeleton: Skeleton, config: EngineConfig | None = None, window_solver: WindowSolver | None = None,
-                 *, body_ordinals: Callable[[], int] | None = None) -> None:
-        super().__init__(skeleton, config, window_solver, threaded=True, body_ordinals=body_ordinals)
+                 *, body_ordinals: Callable[[], int] | None = None, clean_on_poll: bool = False) -> None:
+        super().__init__(skeleton, config, window_solver, threaded=True, body_ordinals=body_ordinals,
+                         clean_on_poll=clean_on_poll)
