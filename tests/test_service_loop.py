@@ -193,3 +193,43 @@ def test_input_waiting_is_handled_before_the_engines_background_work(kinect):
             runs.append(n)
             n = 0
     assert runs and max(runs) <= 10  # 2 ms a frame: polled at least every ~10 ms of input
+
+
+def test_input_that_keeps_coming_starves_no_engine_of_its_polls(kinect):
+    """While input waits, a turn polls one engine and leaves the rest for the next turns,
+    starting where it stopped: a stream that went quiet still gets its clean frames out
+    while another keeps sending (not only when the input stops)."""
+
+    class PendingSource(ScriptedSource):
+        def pending(self):
+            return len(self.items), 0.0
+
+    class PollLog:
+        def __init__(self, name, log, source):
+            self.name, self.log, self.source = name, log, source
+
+        def push(self, frame, fill=True):
+            time.sleep(0.002)
+            return [("live", frame)]
+
+        def poll(self):
+            if self.source.items:  # polled while input waits
+                self.log.append(self.name)
+            return []
+
+        def flush(self, timeout=None):
+            return []
+
+        def metrics(self):
+            return {"lookahead_frames": 0}
+
+    quiet = [next(_frames(kinect, [0], stream=s)) for s in ("a", "b", "c")]
+    busy = list(_frames(kinect, range(1, 80), stream="a"))  # only stream a goes on sending
+    log: list[str] = []
+    made = iter(("a", "b", "c"))
+    source = PendingSource(quiet + busy, batch=1)
+    svc = Service(source, RecordingPublisher(), lambda sk, rate: PollLog(next(made), log, source),
+                  status_interval_s=0)
+    assert svc.run(max_turn_s=0.01) == 0
+    # 79 frames of 2 ms in turns of ~10 ms: ~16 turns with input waiting, each polling one engine
+    assert min(log.count(name) for name in ("a", "b", "c")) >= 3, log
