@@ -22,8 +22,8 @@ their own daemon threads; the engine may solve windows on its own worker):
    (``os.sched_yield``): on a busy core the scheduler lets a running thread finish its
    time slice before a woken one of the same priority runs, so without it the ZeroMQ
    threads that receive the next stream's frame and send the live frame just published
-   waited for the loop to block (bench_service, 30 bodies in five streams on one core:
-   the last two streams' frames reached the source ~3 ms after they were sent).
+   waited for the loop to block (``benchmarks/bench_service.py`` measures the effect:
+   many streams arriving together on one core).
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
    one-line status goes to stderr every ``status_interval_s``.
 

@@ -214,9 +214,9 @@ class StreamEngine:
     ``clean_on_poll`` (threaded mode): :meth:`push` returns the live frame only and leaves
     blending finished windows, finalising and emitting clean frames to :meth:`poll`, so a
     caller with several streams' frames to handle sends every live frame before any of that
-    work (``serve``: it was 40 % of a push, and the last of five 6-body streams arriving
-    together waited for the other four's). A stream holds at most one frame undrained: a
-    push that finds one drains it first.
+    work (``serve``: otherwise the last of several streams arriving together waits for the
+    others' clean work). A stream holds at most one frame undrained: a push that finds one
+    drains it first.
     """
 
     def __init__(
