@@ -97,14 +97,9 @@ RESTART_CAUSES = ("producer_restart", "skeleton_change", "failure")
 _ENGINE_EVENTS = ("windows_solved", "windows_skipped", "windows_abandoned", "solver_errors", "degrade_events")
 
 
-def _yield_cpu() -> None:
-    """Let other runnable threads of this CPU run now (module doc, step 2); a no-op where
-    the platform has no ``sched_yield``."""
-    if _SCHED_YIELD is not None:
-        _SCHED_YIELD()
-
-
-_SCHED_YIELD = getattr(os, "sched_yield", None)
+_yield_cpu: Callable[[], None] = getattr(os, "sched_yield", None) or (lambda: None)
+"""Let other runnable threads of this CPU run now (module doc, step 2); a no-op where the
+platform has no ``sched_yield``."""
 
 
 class ServiceMetrics:
