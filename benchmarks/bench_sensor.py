@@ -24,7 +24,9 @@ each method's seam is measured at its own schedule's window hand-overs:
   than ``median_savgol``'s there, i.e. a cleaner that questions inferred limbs may not
   damage right ones more than a plain smoother does;
 * seam ratio (jitter next to window hand-overs / within a hop of them, pooled over all kinds)
-  at most 1.1.
+  at most 1.1, where the method's schedule hands over within a take (``serve``'s does; every
+  take here fits in one file window, so ``streamfix``'s hand-overs are checked on a longer
+  take by ``tests/test_streaming_offline.py``).
 
 Also written, with no bar: per error kind, in how many takes x seeds the engine beats the
 baseline its pooled bar names, and the worst take (:func:`per_take`): the pooled means weigh

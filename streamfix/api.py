@@ -8,7 +8,7 @@ project's outputs you get; each is the same code the command line and the servic
 ``"offline"``
     what ``streamfix clean`` writes (:func:`streamfix.cleaning.clean_recording`: the gap
     filler on long gaps, then the streaming engine on the file schedule:
-    a 10 s window every 8 s, 9 s lookahead).
+    long windows, :meth:`~streamfix.streaming.config.EngineConfig.for_files`).
 ``"stream"``
     what ``streamfix serve`` publishes on its ``clean`` topic (the streaming engine,
     synchronous, with serve's default window, hop and 0.5 s lookahead; a threaded

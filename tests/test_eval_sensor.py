@@ -63,7 +63,7 @@ def test_cli_scores_what_each_kind_did(records):
     spike = lambda m: np.mean([by[("spike", s, m)]["err_corrupted_m"] for s in (4, 5, 6)])  # noqa: E731
     assert spike("median_savgol") < 0.5 * spike("input")  # a median removes single-frame spikes
     # a hand-over within the 27 frames on serve's schedule (every method but streamfix is
-    # scored there); the file schedule's first hand-over is after 271 frames: no seam to score
+    # scored there); the file schedule's first hand-over is after 571 frames: no seam to score
     for r in records:
         if handover_frames(27, 30.0, r["method"]).any():
             assert r["seam_ratio"] is not None and r["seam_ratio"] > 0, r

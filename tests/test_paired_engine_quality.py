@@ -123,7 +123,7 @@ def test_the_engine_tells_the_window_solver_which_frames_its_blend_uses(keraal):
 
     m = keraal.sensor
     motion = type(m)(m.positions[:120], m.confidence[:120], m.timestamps[:120], m.rate_hz, m.skeleton)
-    for schedule, expected in (("serve", 15 + 10 + 5), ("file", 270 + 240 + 15)):
+    for schedule, expected in (("serve", 15 + 10 + 5), ("file", 570 + 540 + 15)):
         seen.clear()
         clean_motion(motion, schedule_config(schedule, 30.0), BridgingWindowSolver(base=recording))
         assert seen and {c.score_newest_frames for c in seen} == {expected}, schedule

@@ -594,7 +594,7 @@ def test_a_released_sample_drops_what_windows_that_kept_it_blended(kinect, sched
     x = kinect.positions
     assert len(np.unique(x[:, 0, 0])) == len(x)  # a window's last frame tells where it ends
     # the file schedule's shape (the lookahead most of the window, no start-up windows) at 3 s
-    # windows: the take is one 10 s window
+    # windows: the take is one file window
     files = EngineConfig.for_files(30.0, window=90, hop=40, lookahead=60)
     cfg = EngineConfig(rate_hz=30.0) if schedule == "serve" else files
     start, joint = 60, 5

@@ -39,14 +39,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", metavar="IN", help="motion file to clean (.csv Kinect v2, .bvh, .c3d, .sfrec)")
     parser.add_argument("output", metavar="OUT", help="where to write the cleaned motion (format from the extension)")
     parser.add_argument("--window", type=int, default=None, metavar="W",
-                        help="frames per solved window (default: 10 s at the file's rate; serve's schedule: 2 s)")
+                        help="frames per solved window (default: 20 s at the file's rate; serve's schedule: 2 s)")
     parser.add_argument("--hop", type=int, default=None, metavar="H",
-                        help="frames between window solves (default: 8 s, at most lookahead+1)")
+                        help="frames between window solves (default: 18 s, at most lookahead+1)")
     parser.add_argument("--lookahead", default=None, metavar="L",
                         help="lookahead per output frame, as in serve: seconds (2 or 2s) or frames (60f); "
-                             "default 9 s (a file has no latency bound; serve's 0.5 s gives serve's clean topic)")
+                             "default 19 s (a file has no latency bound; serve's 0.5 s gives serve's clean topic)")
     parser.add_argument("--schedule", choices=("file", "serve"), default="file",
-                        help="window schedule: 'file' (default: 10 s windows, 9 s lookahead, a window every 8 s) or "
+                        help="window schedule: 'file' (default: 20 s windows, 19 s lookahead, a window every 18 s) or "
                              "'serve' (serve's clean topic exactly: 0.5 s lookahead, a window every 1/3 s); "
                              "--window/--hop/--lookahead override either")
     parser.add_argument("--skeleton-lengths", default=None, metavar="LENGTHS",

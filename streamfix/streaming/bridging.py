@@ -163,7 +163,7 @@ GAP_SCALE_MAX_S = 3.0
 far beyond the low-rank fit in a 12 s window as in a 3 s one. With the fractions of the whole
 window, a 12 s file window (``streamfix clean --window``) left 1-4 s limb gaps to the fit, which
 placed a walking leg decimetres off (``tests/test_integration_streaming_gaps.py``). Serve's 2 s
-window is below it; the file schedule's 10 s windows (``streaming.config``) judge gaps by 3 s."""
+window is below it; the file schedule's windows (``streaming.config``) judge gaps by 3 s."""
 BLACKOUT_MIN_FRAMES = 3
 """Runs of this many (or more) frames with fewer than 3 observed joints are bridged."""
 BLACKOUT_JOINTS = 3

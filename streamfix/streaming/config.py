@@ -23,19 +23,22 @@ DEFAULT_HOP_S = 1.0 / 3.0  # H: 10 frames at 30 Hz
 # The schedule for files (EngineConfig.for_files): nobody waits for a frame of a file, so
 # each frame takes its value from windows that hold it well inside, and long windows see
 # more of the body's motion per solve (the robust fits, the low-rank model and the bone
-# lengths have more frames to go on) while fewer solves cover each frame (W / H = 1.25
-# instead of serve's 6: cleaning a file costs about half what 3 s windows every 4/3 s
-# did; a repetition of an exercise is one window). Two consecutive windows share
-# K = L + 1 - H frames, the older window's newest and the newer window's oldest used ones
-# (W - L - 1 frames into it); the crossfade (FILE_HANDOVER_S) lies at the older window's
-# end of them, so where they hand over each window has at least 16 frames (0.5 s) beyond
-# (with 10 s windows every 9 s the newer window had none and the hand-overs showed as a
-# seam; 3 s windows every 2 s, whose K was 1 frame, showed one too). Chosen over 3 s
-# windows every 4/3 s, 6 s and 8 s windows by bench_paired, bench_sensor and
-# bench_accuracy; what each scores is in benchmarks/results/.
-FILE_WINDOW_S = 10.0  # W: 300 frames at 30 Hz
-FILE_HOP_S = 8.0  # H: 240 frames at 30 Hz
-FILE_LOOKAHEAD_S = 9.0  # L: 270 frames at 30 Hz: a frame is 0.5-9 s from its windows' newest frame
+# lengths have more frames to go on) while fewer solves cover each frame (W / H = 1.11
+# instead of serve's 6; a take up to 20 s, an exercise repetition or a short capture, is
+# one window). Two consecutive windows share K = L + 1 - H frames, the older window's
+# newest and the newer window's oldest used ones (W - L - 1 frames into it); the
+# crossfade (FILE_HANDOVER_S) lies at the older window's end of them, so where they hand
+# over each window has at least 16 frames (0.5 s) beyond (with windows every W - 1 s the
+# newer window had none and the hand-overs showed as a seam; 3 s windows every 2 s, whose
+# K was 1 frame, showed one too). The length: 10 s windows every 8 s were chosen over 3,
+# 6 and 8 s windows by bench_paired, bench_sensor and bench_accuracy; 20 s windows every
+# 18 s score the same within each benchmark's take-to-take spread (better on some error
+# kinds, worse on others, no systematic loss; the paired takes are one window either way)
+# and cost less: fewer frames solved twice on long files, and a take of 10-20 s is one
+# solve instead of three (issue 13's offline speed target; benchmarks/results/speed.json).
+FILE_WINDOW_S = 20.0  # W: 600 frames at 30 Hz
+FILE_HOP_S = 18.0  # H: 540 frames at 30 Hz
+FILE_LOOKAHEAD_S = 19.0  # L: 570 frames at 30 Hz: a frame is 0.5-19 s from its windows' newest frame
 FILE_HANDOVER_S = 0.5  # crossfade within the K = 31 frames (1 s) consecutive windows share
 
 
