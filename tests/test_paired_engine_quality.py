@@ -87,15 +87,21 @@ def test_serve_scores_its_windows_where_their_output_is_used(keraal):
     from streamfix.streaming.config import schedule_config
     from streamfix.streaming.offline import clean_motion
 
+    # one half-width per window (the per-frame choice, which follows the hand itself, off), scored
+    # over the frames serve publishes from ("newest") or over the whole window
+    def newest(positions, confidence, bones, bone_lengths, rate_hz, config=PipelineConfig(), state=None, init=None):
+        return clean_window(positions, confidence, bones, bone_lengths, rate_hz,
+                            replace(config, local_width_s=None), state, init)
+
     def whole_window(positions, confidence, bones, bone_lengths, rate_hz, config=PipelineConfig(), state=None, init=None):
         return clean_window(positions, confidence, bones, bone_lengths, rate_hz,
-                            replace(config, score_newest_frames=None), state, init)
+                            replace(config, score_newest_frames=None, local_width_s=None), state, init)
 
     m, ref = keraal.sensor, keraal.reference
     hand = m.skeleton.joint_names.index("HandLeft")
     cfg = schedule_config("serve", m.rate_hz)
     errors = {}
-    for name, solver in (("newest", BridgingWindowSolver()), ("whole", BridgingWindowSolver(base=whole_window))):
+    for name, solver in (("newest", BridgingWindowSolver(base=newest)), ("whole", BridgingWindowSolver(base=whole_window))):
         out, _ = clean_motion(m, cfg, solver)
         e = np.linalg.norm(remove_mean_offset(out.positions, ref) - ref, axis=2)
         errors[name] = (float(np.nanmean(e[154:162, hand])), float(np.nanmean(e)))

@@ -22,7 +22,10 @@ def fast_take(shared_data):
 
 
 def _clean(m, x, keep: bool):
-    cfg = PipelineConfig(keep_rigid_motion=keep)
+    """Stage 2 with and without the rigidity test, after one fit per window: the per-frame
+    half-width (``local_width_s``) follows most fast motion itself, which would hide what
+    the test is for."""
+    cfg = PipelineConfig(keep_rigid_motion=keep, local_width_s=None)
     return clean_window(x, np.ones(x.shape[:2]), m.skeleton.bone_array, None, m.rate_hz, cfg)
 
 
