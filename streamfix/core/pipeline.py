@@ -420,16 +420,15 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
     return float(dev.mean()) if dev.size else 0.0
 
 
-def _bone_spread_and_frames(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
-                            min_bone_m: float) -> tuple[float, tuple[np.ndarray, np.ndarray]]:
-    """:func:`_bone_spread` and :func:`streamfix.core.local_width.frame_bone_deviation` of one
-    estimate, from one computation of its bone lengths when the kernels are compiled."""
+def _frame_bone_deviation(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
+                          min_bone_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`streamfix.core.local_width.frame_bone_deviation` of one estimate, from the
+    compiled bone lengths when the kernels are compiled (the same sums)."""
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     if not (kernels.COMPILED and len(b)):
-        return _bone_spread(positions, observed, b, min_bone_m), frame_bone_deviation(positions, observed, b, min_bone_m)
+        return frame_bone_deviation(positions, observed, b, min_bone_m)
     dev, per_frame = kernels.bone_spread_deviations(positions, observed, b, min_bone_m, frames=True)
-    counted = np.isfinite(dev)
-    return (float(dev[counted].mean()) if counted.any() else 0.0), frame_sums(per_frame, counted)
+    return frame_sums(per_frame, np.isfinite(dev))
 
 
 # --------------------------------------------------------------------------- stage 4
@@ -707,46 +706,47 @@ def clean_window(
     def spread(est: np.ndarray) -> float:
         return _bone_spread(est[scored], obs[scored], rigid, cfg.min_bone_m)
 
-    best = None
     spreads = {}
     local = cfg.local_width_s is not None and len(widths) > 1 and len(rigid) > 0
     fits, supports, dev_sums, dev_counts = [], [], [], []
+    best = None  # one half-width for the window (local off): the most rigid
     for h in widths:
         fit_h, resid_h, sup_h = _robust_fit(x, prior, h, cfg.scales_m)
         est_h = _estimate(x, obs3, fit_h, resid_h, cfg)
         if local:
-            spreads[h], (s_h, n_h) = _bone_spread_and_frames(est_h, obs, rigid, cfg.min_bone_m)
-            if scored != slice(None):
-                spreads[h] = spread(est_h)
+            s_h, n_h = _frame_bone_deviation(est_h, obs, rigid, cfg.min_bone_m)
             fits.append(fit_h)
             supports.append(sup_h)
             dev_sums.append(s_h)
             dev_counts.append(n_h)
-        else:
-            spreads[h] = spread(est_h)
+            continue
+        spreads[h] = spread(est_h)
         if best is None or spreads[h] < spreads[best[0]]:
             best = (h, fit_h, resid_h, sup_h)
-    h, fit, resid, sup = best
-    chosen = h
-    full = _kernel_mass(h)  # of a full window: where a fit has less inlier support, the median helps
     if local:
-        # each frame takes the half-width whose bones stay rigid around it (core.local_width)
+        # each frame takes the half-width whose bones stay rigid around it (core.local_width).
+        # The composite is the window's fit everywhere. It used to be kept only where the
+        # window as a whole was as rigid as the best single half-width, for a limb thrown
+        # rigidly for a few frames (a frame's mean over bones dilutes its one stretched bone,
+        # so the short fit that follows it wins there); but that guard also dropped the
+        # composite wherever one width was a hair more rigid over the window, and the
+        # per-frame choice everywhere measured better on every protocol (jumps, spikes, real
+        # sensors: benchmarks/results/). The thrown-limb case stays a known failure
+        # (tests/test_core_pipeline.py).
         index = local_width_index(np.array(dev_sums), np.array(dev_counts),
                                   int(round(cfg.local_width_s * rate_hz)), int(round(cfg.local_width_smooth_s * rate_hz)))
-        local_fit = take_fractional(np.array(fits), index)
-        local_resid = np.where(obs3, x - local_fit, np.nan)
-        spreads["local"] = spread(_estimate(x, obs3, local_fit, local_resid, cfg))
-        # the composite replaces the window-wide fit everywhere. It used to be kept only where
-        # the window as a whole was as rigid, for a limb thrown rigidly for a few frames (a
-        # frame's mean over bones dilutes its one stretched bone, so the short fit that follows
-        # it wins there); but that guard also dropped the composite wherever one width was a
-        # hair more rigid over the window, and the per-frame choice everywhere measured better
-        # on every protocol (jumps, spikes, real sensors: benchmarks/results/). The thrown-limb
-        # case stays a known failure (tests/test_core_pipeline.py).
-        chosen, fit, resid = "local", local_fit, local_resid
+        h, chosen = None, "local"
+        fit = take_fractional(np.array(fits), index)
+        resid = np.where(obs3, x - fit, np.nan)
+        spreads["local"] = spread(_estimate(x, obs3, fit, resid, cfg))
         sup = take_fractional(np.array(supports), index)
+        # of a full window: where a fit has less inlier support, the median helps
         full = np.interp(index, np.arange(len(widths)), [_kernel_mass(w) for w in widths])[:, None, None]
         info["local_half_width_frames"] = np.interp(index, np.arange(len(widths)), widths)
+    else:
+        h, fit, resid, sup = best
+        chosen = h
+        full = _kernel_mass(h)
     if cfg.median_fallback:
         # the median's answer is unbiased for symmetric noise, however heavy: a fallback
         # for windows too short or too fast for any local fit to find the clean samples,
