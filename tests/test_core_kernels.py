@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import correlate1d
 
-from streamfix.core import filters, kernels, pipeline
+from streamfix.core import bone_projection, filters, kernels, local_poly, pipeline, robust_fit
 from streamfix.core.isometry import estimate_bone_lengths
 from streamfix.io import read_motion
 
@@ -49,7 +49,7 @@ def test_local_poly_kernel_matches_numpy_reference(cmu30, h):
     y = gt[:120].reshape(120, -1)
     w = _weights_with_holes(y.shape, h)
     fit, support = kernels.local_poly(y, w, h)
-    ref_fit, ref_support = pipeline._local_poly(y, w, h)
+    ref_fit, ref_support = local_poly.local_poly_numpy(y, w, h)
     # a quadratic through >= 3 samples agrees to rounding; with 1-2 samples the fit is
     # fixed by the tiny ridge and the rounding of the sums moves it by up to ~1e-7 m
     assert np.abs(fit - ref_fit).max() < 1e-6
@@ -84,7 +84,7 @@ def test_pbd_kernel_matches_numpy_reference(kinect):
     lengths[2] = np.nan                       # a bone without a length is left alone
     inv_mass = 1.0 / np.maximum(conf[:100], 0.25)
     got = kernels.project_bone_lengths_pbd(noisy, bones, lengths, 50, inv_mass)
-    ref = pipeline.project_bone_lengths_pbd(noisy, bones, lengths, 50, inv_mass)
+    ref = bone_projection.project_bone_lengths_pbd(noisy, bones, lengths, 50, inv_mass)
     assert np.abs(got - ref).max() < 1e-12
     assert np.abs(got - noisy).max() > 1e-3   # it did move the joints
 
@@ -105,7 +105,7 @@ def test_robust_fit_kernel_matches_numpy_reference(kinect, monkeypatch, h):
     prior = np.where(conf[:60] >= 1.0, 1.0, np.where(conf[:60] > 0, 0.5, 0.0))
     fit, resid, support = kernels.robust_temporal_fit(x, prior, h)
     _use_numpy_references(monkeypatch)
-    ref_fit, ref_resid, ref_support = pipeline.robust_temporal_fit(x, prior, h)
+    ref_fit, ref_resid, ref_support = robust_fit.robust_temporal_fit(x, prior, h)
     assert np.abs(fit - ref_fit).max() < 1e-6
     assert np.array_equal(np.isnan(resid), np.isnan(ref_resid))
     assert np.allclose(support, ref_support, rtol=0, atol=1e-9)
@@ -126,7 +126,7 @@ def test_robust_fit_keeps_the_wider_scale_where_a_sharper_one_leaves_no_inlier(m
     x[:, 0] = [0.3, 1.2, 2.8]
     x[:, 1] = [0.3, 1.0, 2.8]
     x[:, 0, 2] += 0.03 * (-1.0) ** np.arange(T)
-    fit, resid, support = (kernels if compiled else pipeline).robust_temporal_fit(x, np.ones((T, 2)), h)
+    fit, resid, support = (kernels if compiled else robust_fit).robust_temporal_fit(x, np.ones((T, 2)), h)
     assert (support[:, 0, 2] == 0).any()  # the case this is about occurs
     assert np.abs(fit[:, 0, 2] - 2.8).max() < 0.05
     assert np.abs(fit[:, 1] - x[:, 1]).max() < 1e-9  # a steady joint is its samples

@@ -199,7 +199,7 @@ def test_a_forearm_thrown_rigidly_for_a_few_frames_is_removed(shared_data):
 
 
 def test_pbd_projection_reaches_lengths_and_moves_low_confidence_more():
-    from streamfix.core.pipeline import project_bone_lengths_pbd
+    from streamfix.core.bone_projection import project_bone_lengths_pbd
 
     rng = np.random.default_rng(4)
     bones = np.array([[0, 1], [1, 2], [1, 3]])
@@ -238,7 +238,7 @@ def _local_poly_by_lapack(y, w, h):
 def test_local_poly_closed_form_matches_lapack_solve(cmu30, h):
     # the closed-form LDL^T (with LU where a pivot cancelled) gives LAPACK's fit on real
     # mocap with Tukey-like weights, zero-weight runs and windows holding 1-2 samples
-    from streamfix.core.pipeline import _local_poly
+    from streamfix.core.local_poly import local_poly_numpy
 
     gt, _ = cmu30
     rng = np.random.default_rng(h)
@@ -248,7 +248,7 @@ def test_local_poly_closed_form_matches_lapack_solve(cmu30, h):
     w[40:60, 5:10] = 0.0
     w[45, 5:10] = 0.7           # a lone sample
     w[50:52, 6] = 1.0           # two samples
-    fit, support = _local_poly(y, w, h)
+    fit, support = local_poly_numpy(y, w, h)
     ref = _local_poly_by_lapack(y, w, h)
     assert np.abs(fit - ref).max() < 1e-9
     assert np.all(support >= 0) and np.all(support[10 + h:30 - h, :5] == 0)

@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.core import kernels, metrics, pipeline
+from streamfix.core import bone_projection, kernels, metrics
 from streamfix.core.length_tolerance import length_targets, length_tolerance
-from streamfix.core.pipeline import PipelineConfig, project_bone_lengths_pbd
+from streamfix.core.bone_projection import project_bone_lengths_pbd
+from streamfix.core.pipeline import PipelineConfig
 from streamfix.core.reference_metrics import remove_mean_offset
 from streamfix.evaluation.paired import body_region
 from streamfix.evaluation.sensor import _rng, ground_truth
@@ -99,7 +100,7 @@ def test_kernel_matches_the_numpy_reference_with_per_frame_targets():
     targets[:, 1] = np.nan                # a bone without a length is left alone
     inv_mass = rng.uniform(0.5, 2.0, size=(50, 4))
     got = kernels.project_bone_lengths_pbd(x, BONES, targets, 40, inv_mass)
-    ref = pipeline.project_bone_lengths_pbd(x, BONES, targets, 40, inv_mass)
+    ref = bone_projection.project_bone_lengths_pbd(x, BONES, targets, 40, inv_mass)
     assert np.abs(got - ref).max() < 1e-12
     assert np.abs(got - x).max() > 1e-3
 

@@ -14,14 +14,8 @@ import pytest
 
 from streamfix.core import metrics
 from streamfix.core.corruption import add_noise
-from streamfix.core.pipeline import (
-    PipelineConfig,
-    clean_window,
-    joint_noise_scale,
-    noise_share,
-    projection_inverse_mass,
-    smooth_projection,
-)
+from streamfix.core.bone_projection import joint_noise_scale, noise_share, projection_inverse_mass, smooth_projection
+from streamfix.core.pipeline import PipelineConfig, clean_window
 from streamfix.evaluation.registry import run_method
 from streamfix.io.bvh import read_bvh
 from streamfix.io.kinect_csv import read_kinect_csv

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.core.pipeline import project_bone_lengths_pbd
+from streamfix.core.bone_projection import project_bone_lengths_pbd
 from streamfix.core.rigid_bound import least_shift_to_rigid
 from streamfix.io import read_motion
 

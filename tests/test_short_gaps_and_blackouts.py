@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from streamfix.core.interpolate import interpolate_linear, interpolate_spline
-from streamfix.core.pipeline import PipelineConfig, clean_window, fill_short_gaps
+from streamfix.core.pipeline import PipelineConfig, clean_window
+from streamfix.core.window_gaps import fill_short_gaps
 from streamfix.evaluation.registry import run_method
 from streamfix.io.bvh import read_bvh
 from streamfix.io.kinect_csv import read_kinect_csv

@@ -1,11 +1,12 @@
-"""Lost joints yield in the bone projection (core.pipeline.tracking_failures, stage 5).
+"""Lost joints yield in the bone projection (core.bone_projection.tracking_failures, stage 5).
 
 Real data: the KERAAL Kinect v2 + Vicon take, the paired protocol's ground truth."""
 from __future__ import annotations
 
 import numpy as np
 
-from streamfix.core.pipeline import PipelineConfig, tracking_failures
+from streamfix.core.bone_projection import tracking_failures
+from streamfix.core.pipeline import PipelineConfig
 from streamfix.core.reference_metrics import remove_mean_offset
 from streamfix.streaming.config import schedule_config
 from streamfix.streaming.offline import clean_motion

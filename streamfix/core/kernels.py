@@ -6,7 +6,7 @@ call overhead, not arithmetic, sets its cost. Each kernel here fuses one such st
 into a single compiled loop over frames and channels:
 
 * :func:`local_poly`: the weighted local quadratic of
-  :func:`streamfix.core.pipeline._local_poly` (tricube kernel, closed-form LDL^T, LU
+  :func:`streamfix.core.local_poly.local_poly_numpy` (tricube kernel, closed-form LDL^T, LU
   with partial pivoting where elimination cancelled a pivot);
 * :func:`robust_temporal_fit`: stage 1 of the window cleaner (median start, Tukey
   reweighting, local quadratics) with no numpy temporaries between its passes;
@@ -15,7 +15,7 @@ into a single compiled loop over frames and channels:
   frame instead of one sort per frame; bit for bit the same values), and
   :func:`detrended_edges`, its edge frames moved along the edges' robust slopes;
 * :func:`project_bone_lengths_pbd`: the Jacobi constraint iterations of
-  :func:`streamfix.core.pipeline.project_bone_lengths_pbd`, frame by frame;
+  :func:`streamfix.core.bone_projection.project_bone_lengths_pbd`, frame by frame;
 * :func:`bone_spread_deviations`: the window cleaner's rigidity score per bone (bone
   lengths and both medians over a window in one pass), bit for bit;
 * :func:`gauss_newton_update`: the isometry step of
@@ -70,7 +70,7 @@ COMPILED = HAVE_NUMBA and os.environ.get("STREAMFIX_NUMBA", "1") != "0"
 False: the numpy references. Read at each call, so it may be switched at runtime
 (tests and ``benchmarks/bench_speed.py --reference`` time both in one process)."""
 
-_PIVOT_RTOL = 1e-4  # the same threshold as streamfix.core.pipeline._local_poly
+_PIVOT_RTOL = 1e-4  # the same threshold as streamfix.core.local_poly.local_poly_numpy
 
 
 def _jit(fn, error_model: str = "python"):
@@ -215,7 +215,7 @@ def _solve3_first_py(m00, m01, m02, m11, m12, m22, b0, b1, b2):  # pragma: no co
 @functools.lru_cache(maxsize=64)
 def _poly_taps(h: int) -> np.ndarray:
     """``(5, 2h + 1)`` moments ``K(k) (k/h)^m`` of the tricube kernel of half-width ``h`` frames
-    (the coefficients of :func:`streamfix.core.pipeline._local_poly`); cached, read-only."""
+    (the coefficients of :func:`streamfix.core.local_poly.local_poly_numpy`); cached, read-only."""
     k = np.arange(-h, h + 1, dtype=np.float64)
     K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
     u = k / h
@@ -231,13 +231,13 @@ _local_poly_compiled = _jit(_local_poly_loop, error_model="numpy")  # vectorised
 def local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
     """Weighted local quadratic fit of ``y`` ``(T, C)`` with weights ``w``, half-width ``h`` frames.
 
-    The same normal equations and solve as :func:`streamfix.core.pipeline._local_poly`
+    The same normal equations and solve as :func:`streamfix.core.local_poly.local_poly_numpy`
     (tricube kernel, abscissa scaled by ``h``), summed in one compiled pass over the
     window instead of eight correlations. Returns ``(fit, support)``, support = the
     kernel-weighted sum of ``w``. Needs numba (:data:`HAVE_NUMBA`).
     """
     if _local_poly_compiled is None:
-        raise RuntimeError("streamfix.core.kernels.local_poly needs numba; use streamfix.core.pipeline._local_poly")
+        raise RuntimeError("streamfix.core.kernels.local_poly needs numba; use streamfix.core.local_poly.local_poly_numpy")
     taps = _poly_taps(int(h))  # the same coefficients as the reference
     y = np.ascontiguousarray(y, dtype=np.float64)
     w = np.ascontiguousarray(w, dtype=np.float64)
@@ -376,7 +376,7 @@ def project_bone_lengths_pbd(
     inverse_mass: np.ndarray | None = None,
 ) -> np.ndarray:
     """Jacobi bone-length iterations, compiled: the math of
-    :func:`streamfix.core.pipeline.project_bone_lengths_pbd` (same arguments, same result
+    :func:`streamfix.core.bone_projection.project_bone_lengths_pbd` (same arguments, same result
     up to summation order), one frame at a time. Needs numba (:data:`HAVE_NUMBA`)."""
     if _pbd_compiled is None:
         raise RuntimeError("streamfix.core.kernels.project_bone_lengths_pbd needs numba; use streamfix.core.pipeline's")
@@ -516,7 +516,7 @@ def robust_temporal_fit(
     h: int,
     scales_m: tuple[float, ...] = (0.10, 0.05, 0.02, 0.01),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stage 1 of the window cleaner, compiled: :func:`streamfix.core.pipeline.robust_temporal_fit`
+    """Stage 1 of the window cleaner, compiled: :func:`streamfix.core.robust_fit.robust_temporal_fit`
     (running-median start, Tukey reweighting at the graduated scales ``scales_m`` (m), local
     quadratic of half-width ``h`` frames) with the weights, median and fits in compiled
     loops and no per-pass temporaries. Same arguments and returns ``(fit, residual,

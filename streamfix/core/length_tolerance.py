@@ -67,7 +67,7 @@ def length_tolerance(
     ``max(0, fraction * length - noise_multiple * sqrt(s_i^2 + s_j^2))`` where both ends
     are ``trusted`` (observed, not an outlier) with ``confidence >= min_confidence``;
     0 elsewhere and for bones without a finite length. ``noise_m`` ``(J,)``: each
-    joint's noise scale (m, :func:`streamfix.core.pipeline.joint_noise_scale`).
+    joint's noise scale (m, :func:`streamfix.core.bone_projection.joint_noise_scale`).
     """
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     lengths = np.asarray(lengths, dtype=np.float64)

@@ -5,9 +5,9 @@ only what its optimum says is error, and at heavy corruption (80 %) that optimum
 far from the truth; on real Kinect data its wavelet term removes only a quarter of the
 jitter. The pipeline therefore wraps the solver in robust statistics:
 
-1. **Robust temporal regression** (outlier detection). Each coordinate channel is fitted
-   by a local quadratic (tricube kernel, half-width ``h`` frames) with Tukey-biweight
-   weights, by iteratively reweighted least squares started from a running median and
+1. **Robust temporal regression** (outlier detection, :mod:`streamfix.core.robust_fit`).
+   Each coordinate channel is fitted by a local quadratic (tricube kernel, half-width
+   ``h`` frames) with Tukey-biweight weights, by iteratively reweighted least squares started from a running median and
    with a graduated scale ``c`` (10 -> 5 -> 2 -> 1 cm; Tukey's biweight
    ``w = (1 - (r/c)^2)^2`` for ``|r| < c``). Corrupted entries of the protocol are
    uniform over +-25 cm, clean ones lie on a smooth curve: the clean samples are the
@@ -49,8 +49,8 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    On a rigid skeleton, a flagged group of joints whose raw bones keep their lengths
    while the fit's do not is fast motion, not an outlier, and keeps its samples
    (``keep_rigid_motion``, :mod:`streamfix.core.rigid_motion`).
-3. **Noise-matched smoothing.** What is left after outlier removal is either motion
-   detail (keep it) or white sensor noise (smooth it). The two are told apart by how
+3. **Noise-matched smoothing** (:mod:`streamfix.core.adaptive_smoothing`). What is left
+   after outlier removal is either motion detail (keep it) or white sensor noise (smooth it). The two are told apart by how
    the robust scale of local-quadratic residuals grows with the window: white noise
    gives nearly the same scale at half-widths 2 and 4 frames (ratio ~1.3-1.6 on all
    our Kinect files), fitting real motion leaves a bias growing like h^4 (ratio 2-4 on
@@ -67,8 +67,8 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    (smoothing that costs the paper protocol accuracy): gate and window were chosen
    against Vicon on UI-PRMD (``benchmarks/bench_paired.py``) with the paper protocol's
    bars checked alongside (``benchmarks/bench_accuracy.py``).
-4. **Solver for what is missing.** Joint-frames with no observation (gaps) are
-   recovered by :func:`streamfix.core.alm.solve` (mode ``solver_mode``, low rank +
+4. **Solver for what is missing** (around it, :mod:`streamfix.core.window_gaps`).
+   Joint-frames with no observation (gaps) are recovered by :func:`streamfix.core.alm.solve` (mode ``solver_mode``, low rank +
    isometry [+ wavelet]) run on the cleaned window, where spatial correlation across
    joints beats temporal interpolation over 10-60 frame gaps. The solver's offset from
    the observations at each gap's two ends is ramped linearly across the gap
@@ -81,20 +81,20 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    missing: run after outlier removal on complete data the solver changed AJE by
    -5 % .. +400 % (it only helps a little at 80 %), and run on the raw input from the
    robust estimate as ``init`` it walks back to its own optimum (0.175 m at 80 %).
-5. **Bone-length projection.** Every bone is pulled to its length (given, or the
+5. **Bone-length projection** (:mod:`streamfix.core.bone_projection`). Every bone is pulled to its length (given, or the
    median over the window's confident outlier-free frames), which the paper's model
    does only softly: Jacobi constraint iterations (position-based dynamics,
-   :func:`project_bone_lengths_pbd`) split each bone's length error between its ends
+   :func:`streamfix.core.bone_projection.project_bone_lengths_pbd`) split each bone's length error between its ends
    in proportion to their inverse confidence, so an *inferred* joint moves twice as
    far as a tracked one. Measured against the Gauss-Newton step of Eq. (20) with
-   Z2 = 0 (:func:`project_bone_lengths`, ``projection="gauss_newton"``), which has no
+   Z2 = 0 (:func:`streamfix.core.bone_projection.project_bone_lengths`, ``projection="gauss_newton"``), which has no
    line search and left Kinect bone CV at 0.01-0.12 of the input (more steps made it
    worse on some files), 50 iterations lower AJE and ABE on every CMU/Xia case tried.
-   **Noisy joints take the correction** (:func:`projection_inverse_mass`): a joint whose
-   window residual scale (:func:`joint_noise_scale`) is clearly above the body's typical
+   **Noisy joints take the correction** (:mod:`streamfix.core.bone_projection`): a joint whose
+   window residual scale (``joint_noise_scale``) is clearly above the body's typical
    joint's moves in proportion to its variance (a Kinect thumb or hand, not the wrist,
    shoulder and spine behind it), and on noisy joints the correction is smoothed over
-   ``projection_smooth_s`` (:func:`smooth_projection`): a steady length correction
+   ``projection_smooth_s`` (``smooth_projection``): a steady length correction
    applied along a short bone whose direction jitters would add jitter. Exact samples
    (mocap) keep equal shares. **Length play on tracked bones**
    (:mod:`streamfix.core.length_tolerance`): a bone between two tracked, precise joints
@@ -103,7 +103,7 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    noise), and is pulled only to that band's edge beyond: a sensor's joint centres shift
    with the pose, and a length error does not say which end is wrong. **Lost joints
    yield**: a run of outlier flags at least ``projection_failure_s`` long
-   (:func:`tracking_failures`) holds the temporal fit's guess, and takes the length
+   (``tracking_failures``) holds the temporal fit's guess, and takes the length
    errors of its bones as a missing joint would.
 
 How well it does, against what, is measured by the benchmarks and written to
@@ -119,20 +119,23 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import correlate1d
 
 from . import alm, kernels
-from .filters import median_savgol, running_median
-from .excursion import EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion, parents_from_bones
-from .interpolate import (continuity_baseline, interpolate_linear, interpolate_spline, missing_run_lengths,
-                          neighbour_observations)
-from .isometry import bone_length_deviations, estimate_bone_lengths, gauss_newton_step, incidence_matrix
+from .adaptive_smoothing import motion_adaptive_smooth
+from .bone_projection import (joint_noise_scale, noise_share, project_bone_lengths, project_pbd,
+                              projection_inverse_mass, smooth_projection, tracking_failures)
+from .excursion import EXCURSION_GAIN
+from .filters import median_savgol
+from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths
+from .isometry import bone_length_deviations, estimate_bone_lengths
 from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
+from .local_poly import kernel_mass, residual_scale
 from .local_width import frame_bone_deviation, frame_sums, local_width_index, take_fractional
 from .rigid_motion import rigid_motion
-from .robust_stats import nanmedian
+from .robust_fit import robust_fit
+from .window_gaps import fill_short_gaps, limit_open_gaps
 
-__all__ = ["PipelineConfig", "WindowResult", "clean_window", "robust_temporal_fit", "tracking_failures"]
+__all__ = ["PipelineConfig", "WindowResult", "clean_window"]
 
 
 @dataclass(frozen=True)
@@ -165,7 +168,7 @@ class PipelineConfig:
     solver_tol: float = 1e-5
     boundary_correction: bool = True
     short_gap_s: float = 0.1  # every gap at most this long (s): local quadratic across it, no solver
-    # a gap still open at the window's end stays near the joint's last pose (see _limit_open_gaps):
+    # a gap still open at the window's end stays near the joint's last pose (core.window_gaps.limit_open_gaps):
     # within open_gap_gain x its recent range of motion (None = off), a bound reached over open_gap_ramp_s
     open_gap_gain: float | None = EXCURSION_GAIN
     open_gap_ramp_s: float = 0.5
@@ -211,157 +214,6 @@ class WindowResult:
     info: dict = field(default_factory=dict)
 
 
-# --------------------------------------------------------------------------- stage 3
-def motion_adaptive_smooth(y: np.ndarray, w: np.ndarray, rate_hz: float, cfg: "PipelineConfig") -> tuple[np.ndarray, int]:
-    """Zero-lag smoothing of ``y`` ``(T, 3J)`` whose span follows each joint's motion.
-
-    Two weighted local quadratics (:func:`_local_poly`): long (``smooth_window_s``) and
-    short (``smooth_short_s``). Where they agree to within ``smooth_bias_m[0]`` (per joint,
-    averaged over a short span) the long one is used: its bias is that small and it
-    averages more noise; above ``smooth_bias_m[1]`` the short one; in between a smooth
-    blend (Lepski's rule with two bandwidths and an absolute tolerance). Why: slow
-    rehabilitation movement wants 0.7 s (UI-PRMD against Vicon), a walking leg wants
-    0.2 s: one fixed 0.7 s span made stylised walking with the sensor protocol's noise
-    2-3x *worse* than the unsmoothed input. The price: correlated sensor noise makes the
-    two fits part as much as motion does, so on slow movement the short fit wins more
-    often than it should and the output keeps more jitter than a fixed long span would
-    (``smooth_short_s=None`` gives that span to every joint, for slow-motion work such as
-    rehabilitation). Returns the smoothed array and the long half-width (frames).
-    """
-    T = y.shape[0]
-    hl = max(2, int(round(cfg.smooth_window_s * rate_hz / 2)))
-    short_s = cfg.smooth_window_s if cfg.smooth_short_s is None else cfg.smooth_short_s
-    hs = min(hl, max(1, int(round(short_s * rate_hz / 2))))
-    long_, _ = fit_local_quadratic(y, w, hl)
-    if hs == hl:
-        return long_, hl
-    short, _ = fit_local_quadratic(y, w, hs)
-    dev = np.linalg.norm((long_ - short).reshape(T, -1, 3), axis=2)  # (T, J) m
-    lo, hi = cfg.smooth_bias_m
-    dev = correlate1d(dev, np.full(2 * hs + 1, 1.0 / (2 * hs + 1)), axis=0, mode="nearest")
-    z = np.clip((hi - dev) / max(hi - lo, 1e-12), 0.0, 1.0)
-    a = np.repeat(z * z * (3.0 - 2.0 * z), 3, axis=1)  # weight of the long fit
-    return a * long_ + (1.0 - a) * short, hl
-
-
-# --------------------------------------------------------------------------- stage 1
-_PIVOT_RTOL = 1e-4  # LDL^T pivot / diagonal below this: cancellation, solve by LU instead
-
-
-def _local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted local quadratic fit at every frame of ``y`` ``(T, C)`` with weights ``w``.
-
-    Tricube kernel K(k) = (1 - (|k|/(h+1))^3)^3, k = -h..h. The normal equations
-    sum_k K w (1, k, k^2)^T (1, k, k^2) a = sum_k K w y (1, k, k^2)^T are built by
-    correlations along time (no loop over frames) and solved in closed form (LDL^T),
-    elementwise over (T, C): ~10x cheaper than a batched ``np.linalg.solve`` of 3x3s.
-    Returns ``(fit, support)`` with support = sum_k K(k) w(t+k).
-    """
-    k = np.arange(-h, h + 1, dtype=np.float64)
-    K = (1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3
-    u = k / h  # scaled abscissa keeps the 3x3 systems well conditioned
-    S = [correlate1d(w, K * u**m, axis=0, mode="constant") for m in range(5)]
-    wy = w * y
-    R = [correlate1d(wy, K * u**m, axis=0, mode="constant") for m in range(3)]
-    # normal matrix M = [[S0, S1, S2], [S1, S2, S3], [S2, S3, S4]] + ridge: 1e-12 on the
-    # constant, 1e-9 on slope/curvature (a lone sample gives a constant fit)
-    m00 = S[0] + 1e-12
-    m11 = S[2] + 1e-9
-    m22 = S[4] + 1e-9
-    m01, m02, m12 = S[1], S[2], S[3]
-    # closed-form LDL^T of the symmetric 3x3 (elementwise over (T, C), no per-system
-    # call overhead); only the constant a0 = fit is needed. M is positive definite.
-    d0 = m00
-    l10 = m01 / d0
-    l20 = m02 / d0
-    d1 = m11 - l10 * m01
-    l21 = (m12 - l20 * m01) / d1
-    d2 = m22 - l20 * m02 - l21 * l21 * d1
-    z1 = R[1] - l10 * R[0]
-    a2 = (R[2] - l20 * R[0] - l21 * z1) / d2
-    a1 = z1 / d1 - l21 * a2
-    fit = R[0] / d0 - l10 * a1 - l20 * a2
-    # where elimination cancelled most digits of a pivot (a window holding one or two
-    # weighted samples: the fit is then fixed by the tiny ridge), LDL^T and LU agree
-    # only to ~1e-7 m; those systems keep LAPACK's LU with pivoting so the result is
-    # the same as solving every system with it (< 1e-9 m apart; tested on real mocap)
-    bad = (d1 < _PIVOT_RTOL * m11) | (d2 < _PIVOT_RTOL * m22)
-    if bad.any():
-        M = np.empty((int(bad.sum()), 3, 3))
-        M[:, 0, 0], M[:, 1, 1], M[:, 2, 2] = m00[bad], m11[bad], m22[bad]
-        M[:, 0, 1] = M[:, 1, 0] = m01[bad]
-        M[:, 0, 2] = M[:, 2, 0] = m02[bad]
-        M[:, 1, 2] = M[:, 2, 1] = m12[bad]
-        rhs = np.stack([R[0][bad], R[1][bad], R[2][bad]], axis=-1)[..., None]
-        fit[bad] = np.linalg.solve(M, rhs)[:, 0, 0]
-    return fit, S[0]
-
-
-
-def fit_local_quadratic(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-lag weighted local quadratic of ``y`` ``(T, C)`` at every frame, half-width ``h``
-    frames (:func:`_local_poly`; compiled when :data:`streamfix.core.kernels.COMPILED`, same
-    math). Returns ``(fit, support)``."""
-    return kernels.local_poly(y, w, h) if kernels.COMPILED else _local_poly(y, w, h)
-
-
-def robust_temporal_fit(
-    positions: np.ndarray,
-    weights: np.ndarray,
-    h: int,
-    scales_m: tuple[float, ...] = (0.10, 0.05, 0.02, 0.01),
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stage 1 on ``(T, J, 3)`` with prior weights ``(T, J)`` (0 = missing).
-
-    Returns ``(fit, residual, support)`` each ``(T, J, 3)``; ``fit`` is the robust local
-    quadratic at each frame, ``residual = positions - fit`` (NaN where missing),
-    ``support`` the kernel-weighted count of inliers behind each fit at the sharpest
-    scale (0 where it left none: the fit there is the last scale's that had inliers).
-    """
-    x = np.asarray(positions, dtype=np.float64)
-    n_frames, n_joints, _ = x.shape
-    y = x.reshape(n_frames, 3 * n_joints)
-    prior = np.repeat(np.asarray(weights, dtype=np.float64), 3, axis=1)
-    prior = np.where(np.isfinite(y), prior, 0.0)
-    obs = prior > 0
-    y0 = np.where(obs, y, 0.0)
-    # only the reweighting's start: the local quadratics that follow carry the trend at the
-    # edges themselves (detrended edges here left the sensor protocol's noise-kind errors
-    # unchanged, frame for frame, and would run once per candidate width)
-    med = running_median(np.where(obs, y, np.nan), 2 * h + 1, detrend_edges=False)
-    fit = np.where(np.isfinite(med), med, 0.0)
-    support = np.zeros_like(y0)
-    for c in scales_m:  # graduated non-convexity: wide basin first, then sharpen
-        r = y0 - fit
-        w = np.where(obs & (np.abs(r) < c), (1.0 - (r / c) ** 2) ** 2, 0.0) * prior
-        new_fit, support = fit_local_quadratic(y0, w, h)
-        # a sharper scale that leaves a frame no inlier at all has nothing to fit there (the
-        # ridge alone gives 0, the camera's origin): the wider scale's estimate stands
-        fit = np.where(support > 0, new_fit, fit)
-    resid = np.where(obs, y0 - fit, np.nan)
-    shape = (n_frames, n_joints, 3)
-    return fit.reshape(shape), resid.reshape(shape), support.reshape(shape)
-
-
-def _robust_fit(positions, weights, h, scales_m):
-    """:func:`robust_temporal_fit`, compiled when :data:`streamfix.core.kernels.COMPILED` (same math)."""
-    fit = kernels.robust_temporal_fit if kernels.COMPILED else robust_temporal_fit
-    return fit(positions, weights, h, scales_m)
-
-
-def _residual_scale(y: np.ndarray, w: np.ndarray, h: int) -> float:
-    """Robust scale (m) of the residual of a local quadratic fit of half-width ``h`` frames.
-
-    White noise of std s leaves a residual of nearly the same scale whatever ``h``
-    (a fraction that grows slowly with h); the bias of fitting real motion grows like
-    h^4. The ratio of the scales at h = 4 and h = 2 therefore tells sensor noise
-    (ratio ~1.3) from motion detail (ratio >> 2).
-    """
-    fit, _ = fit_local_quadratic(y, w, h)
-    r = np.abs(y - fit)[w > 0]
-    return float(1.4826 * np.median(r)) if r.size else 0.0
-
-
 def _median_abs(resid: np.ndarray) -> float:
     """Median absolute residual (m) over the observed coordinates (NaN elsewhere); 0 for none."""
     r = np.abs(resid[np.isfinite(resid)])
@@ -388,13 +240,6 @@ def _rigid_pairs(x: np.ndarray, obs: np.ndarray, rate_hz: float, k: int = 60) ->
         return np.zeros((0, 2), dtype=np.intp)
     med = median_savgol(x, rate_hz, obs)
     return estimate_rigid_pairs(med, obs, k=k, min_common=max(3, min(30, x.shape[0] // 2)))
-
-
-def _kernel_mass(h: int) -> float:
-    """Sum of the tricube kernel of half-width ``h`` frames (a local fit's support with every
-    sample observed and weighted 1)."""
-    k = np.arange(-h, h + 1)
-    return float(np.sum((1.0 - (np.abs(k) / (h + 1)) ** 3) ** 3))
 
 
 def _scored_frames(n_frames: int, newest: int | None, widest_half_width: int) -> slice:
@@ -431,234 +276,7 @@ def _frame_bone_deviation(positions: np.ndarray, observed: np.ndarray, bones: np
     return frame_sums(per_frame, np.isfinite(dev))
 
 
-# --------------------------------------------------------------------------- stage 4
-def fill_short_gaps(positions: np.ndarray, observed: np.ndarray, max_gap_frames: int) -> np.ndarray:
-    """Fill gaps of at most ``max_gap_frames`` frames by the weighted local quadratic across them.
-
-    ``positions`` ``(T, J, 3)`` m (values at missing joint-frames ignored), ``observed``
-    ``(T, J)``. A gap with samples on both sides takes the local quadratic through its
-    neighbours (half-width ``max_gap_frames + 1``: a full gap still has samples on both
-    sides of the kernel); one open at the window's edge holds the nearest sample. Why: the
-    gaps a stream has most often are single dropped frames the engine synthesised, every
-    joint missing for 1/30 s; solving the whole window's low-rank model for them cost a
-    streamfix clean of a Kinect recording 40 % of its time, and across one or two frames
-    the neighbours' curvature says more than the other joints do.
-    """
-    x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool)
-    n_frames = x.shape[0]
-    w = np.repeat(obs.astype(np.float64), 3, axis=1)
-    y = np.where(w > 0, x.reshape(n_frames, -1), 0.0)
-    fit, _ = fit_local_quadratic(y, w, max(2, int(max_gap_frames) + 1))
-    held, prev, nxt = continuity_baseline(x, obs)  # hold at an open edge
-    inside = (prev >= 0) & (nxt < n_frames)
-    out = np.where(inside[..., None], fit.reshape(x.shape), held)
-    out[(prev < 0) & (nxt >= n_frames)] = np.nan  # never observed in the window
-    return np.where(obs[..., None], x, out)
-
-
-# --------------------------------------------------------------------------- stage 5
-def project_bone_lengths(
-    positions: np.ndarray,
-    bones: np.ndarray,
-    bone_lengths: np.ndarray,
-    steps: int = 4,
-    gamma: float = 1e4,
-) -> np.ndarray:
-    """Pull bones toward ``bone_lengths`` (m) by Gauss-Newton on Eq. (20) with Z2 = 0.
-
-    Each step minimises the linearised ``gamma/2 E_iso(N) + 1/2 ||N - A||^2`` around the
-    current N, anchored at the input A: a proximal projection onto constant bone
-    lengths (large gamma = nearly exact lengths, small moves).
-    """
-    A = np.asarray(positions, dtype=np.float64)
-    if len(bones) == 0 or steps <= 0:
-        return A.copy()
-    finite = np.isfinite(A).all(axis=2)
-    if not finite.all():
-        return A.copy()  # never invent data for joints that are still missing
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    inc = incidence_matrix(b, A.shape[1])
-    N = A.copy()
-    zero = np.zeros_like(A)
-    for _ in range(steps):
-        N = gauss_newton_step(N, A, zero, 1.0, gamma, b, bone_lengths, inc)
-    return N
-
-
-def project_bone_lengths_pbd(
-    positions: np.ndarray,
-    bones: np.ndarray,
-    bone_lengths: np.ndarray,
-    iterations: int = 20,
-    inverse_mass: np.ndarray | None = None,
-) -> np.ndarray:
-    """Bone-length projection by Jacobi constraint iterations (position-based dynamics).
-
-    Per bone (i, j) with current vector u = n_i - n_j and target length l (``bone_lengths``
-    ``(B,)``, or ``(T, B)`` for a target per frame: :func:`streamfix.core.length_tolerance.length_targets`),
-    the length error (|u| - l) is split between its two ends along u in proportion to their
-    inverse masses ``inverse_mass`` ``(T, J)`` (a low-confidence joint moves more);
-    each joint moves by the mean of its bones' corrections. Vectorised over frames and
-    bones; unconditionally stable (every step shortens each violated constraint).
-    """
-    x = np.asarray(positions, dtype=np.float64).copy()
-    i, j, target, share_i, degree = kernels.pbd_constraints(x.shape, bones, bone_lengths, inverse_mass)
-    if len(i) == 0 or iterations <= 0 or not np.isfinite(x).all():
-        return x
-    n_frames, n_joints, _ = x.shape
-    rows = np.arange(len(i))
-    P = np.zeros((len(i), n_joints))
-    Q = np.zeros((len(i), n_joints))
-    P[rows, i] = 1.0
-    Q[rows, j] = 1.0
-    P /= np.maximum(degree, 1.0)[None, :]  # scatter to joints and average over their bones
-    Q /= np.maximum(degree, 1.0)[None, :]
-    # joint-major layout (J, 3, T): each iteration is two row gathers, norms from three
-    # contiguous (B, T) planes, and one matrix product scattering both bones' ends,
-    # C = [-P^T, Q^T] (J, 2B)
-    n_bones = len(i)
-    C = np.concatenate([-P.T, Q.T], axis=1)
-    si = share_i.T[:, None, :]                                    # (B, 1, T)
-    xt = np.ascontiguousarray(x.transpose(1, 2, 0))               # (J, 3, T)
-    for _ in range(iterations):
-        u = xt[i] - xt[j]                                         # (B, 3, T)
-        sq = u * u
-        norm = np.sqrt(sq[:, 0] + sq[:, 1] + sq[:, 2])            # (B, T)
-        err = (norm - target) / np.maximum(norm, 1e-9)
-        err[norm <= 1e-9] = 0.0
-        corr = u * err[:, None, :]                                # the full length error along u
-        corr_i = corr * si
-        V = np.concatenate([corr_i, corr - corr_i])               # i's share, then j's
-        xt += (C @ V.reshape(2 * n_bones, 3 * n_frames)).reshape(n_joints, 3, n_frames)
-    return np.ascontiguousarray(xt.transpose(2, 0, 1))
-
-
-
-def joint_noise_scale(observed_positions: np.ndarray, estimate: np.ndarray, inlier: np.ndarray) -> np.ndarray:
-    """``(J,)`` robust scale (m) of each joint's inlier coordinates about ``estimate`` ``(T, J, 3)``.
-
-    1.4826 x the median absolute residual over the window's frames and axes; 0 for a
-    joint with no inlier. Exact samples (mocap, the paper protocol's uncorrupted
-    entries) give 0; on Kinect v2 a thumb or hand several times a shoulder's.
-    """
-    resid = np.abs(np.where(inlier, np.asarray(observed_positions, dtype=np.float64) - estimate, np.nan))
-    per_joint = resid.transpose(1, 0, 2).reshape(resid.shape[1], -1)
-    scale = 1.4826 * nanmedian(per_joint, axis=1)
-    return np.nan_to_num(scale, nan=0.0)
-
-
-def noise_share(noise_m: np.ndarray, noise_floor_m: float | None) -> np.ndarray:
-    """``(J,)`` in [0, 1): ``s^2 / (s^2 + floor^2)``, how much of a joint's sample is noise (0 = exact)."""
-    s2 = np.asarray(noise_m, dtype=np.float64) ** 2
-    if noise_floor_m is None:
-        return np.zeros_like(s2)
-    return s2 / (s2 + float(noise_floor_m) ** 2)
-
-
-def tracking_failures(flagged: np.ndarray, rate_hz: float, min_s: float | None) -> np.ndarray:
-    """``(T, J)`` bool: flagged samples in runs of at least ``min_s`` seconds (at ``rate_hz``;
-    None = none): a sensor that lost the joint for that long, not a spike or a jittery sample.
-
-    Why: such a run's values are the temporal fit's guess, not a measurement, so the bone
-    projection moves it as it moves a missing joint (confidence 0) and leaves its tracked
-    neighbour where the sensor put it. On the KERAAL take, the arms' failed runs had made
-    the projection drag the top of the spine (SpineShoulder) and the elbows, which the
-    sensor had right. Shorter runs keep their confidence: on ``serve``'s schedule, where
-    isolated flags are common at the window's newest frames, treating every flag so added
-    output jitter (``benchmarks/bench_paired.py``'s jitter column).
-    """
-    f = np.asarray(flagged, dtype=bool)
-    if min_s is None or not f.any():
-        return np.zeros_like(f)
-    min_frames = max(1, int(round(min_s * rate_hz)))
-    return missing_run_lengths(~f) >= min_frames
-
-
-def projection_inverse_mass(
-    confidence: np.ndarray,
-    observed: np.ndarray,
-    noise_m: np.ndarray,
-    noise_floor_m: float | None,
-    noisy_ratio: float = 2.0,
-) -> np.ndarray:
-    """``(T, J)`` inverse masses for :func:`project_bone_lengths_pbd`: who takes a bone's length error.
-
-    Confidence: tracked 1, inferred (0.5) 2x, missing 4x. Noise: a joint clearly noisier
-    than the body's typical joint (scale ``s_j`` above ``noisy_ratio`` x the median
-    joint's plus ``noise_floor_m``; :func:`joint_noise_scale`) moves
-    ``(s_j / that level)^2`` times more: the weighted least-squares split of a length
-    error between two measurements of unequal variance. Why: on Kinect v2 a bone's
-    length error comes from its noisier end (thumb, hand tip, hand); split evenly, the
-    correction carried the hand's jitter into the wrist, shoulders and spine (on
-    Ges04_comehere.csv the projection tripled the shoulders' jitter). Joints of similar
-    noise keep equal shares: weighting them by estimated scales only moved corrections
-    at random (measured on the sensor protocol, whose noise is the same on every joint).
-    """
-    conf_mass = 1.0 / np.maximum(np.where(observed, confidence, 0.0), 0.25)
-    s = np.asarray(noise_m, dtype=np.float64)
-    if noise_floor_m is None or not s.size:
-        return conf_mass
-    level = noisy_ratio * float(np.median(s)) + noise_floor_m
-    return conf_mass * np.maximum(1.0, (s / level) ** 2)[None, :]
-
-
-def smooth_projection(
-    estimate: np.ndarray, projected: np.ndarray, share: np.ndarray, rate_hz: float, span_s: float
-) -> np.ndarray:
-    """``projected`` with the correction ``projected - estimate`` smoothed over time on noisy joints.
-
-    The correction is replaced by its zero-lag local quadratic over ``span_s`` seconds
-    in proportion to each joint's noise ``share`` ``(J,)`` (:func:`noise_share`). Why: on
-    a noisy short bone (a Kinect hand, thumb or foot) the bone's direction jitters, and a
-    steady length correction applied along it every frame turns that into position
-    jitter (Ges04_comehere.csv: the projected output jittered more than median +
-    Savitzky-Golay, the unprojected one less). Smoothed, a persistent length error is
-    still removed and frame-to-frame length noise is left as it was. Exact joints
-    (share 0: mocap) keep the exact projection.
-    """
-    h = int(round(span_s * rate_hz / 2))
-    if h < 2 or not np.any(share > 0):
-        return projected
-    n_frames = estimate.shape[0]
-    corr = (projected - estimate).reshape(n_frames, -1)
-    smooth, _ = fit_local_quadratic(corr, np.ones_like(corr), h)
-    a = np.repeat(np.asarray(share, dtype=np.float64), 3)[None, :]
-    return estimate + (corr + a * (smooth - corr)).reshape(estimate.shape)
-
-
-def _project_pbd(positions, bones, bone_lengths, iterations, inverse_mass):
-    """:func:`project_bone_lengths_pbd`, compiled when :data:`streamfix.core.kernels.COMPILED` (same math)."""
-    project = kernels.project_bone_lengths_pbd if kernels.COMPILED else project_bone_lengths_pbd
-    return project(positions, bones, bone_lengths, iterations, inverse_mass)
-
-
 # --------------------------------------------------------------------------- the pipeline
-def _limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rate_hz: float,
-                     gain: float, ramp_s: float) -> np.ndarray:
-    """``filled`` ``(T, J, 3)`` m with each gap still open at the window's end kept within
-    ``gain`` times the joint's range of motion over ``EXCURSION_HORIZON_S`` (1 s) from its
-    last observed pose, relative to the limb's anchor, a bound that grows from 0 over the
-    gap's first ``ramp_s`` seconds (:func:`streamfix.core.excursion.limit_excursion`).
-
-    Why: with no far end, the low-rank solve places a joint that has just vanished from
-    the other joints alone, and that placement is not tied to where the joint was a frame
-    before: an arm lost at a walking body's newest frames came out 32-42 cm from where it
-    had been one frame earlier (CMU 131_01, ``tests/test_open_gaps.py``), and the streaming
-    engine's clean output (0.5 s lookahead) blends those newest frames in. Closed gaps are
-    the boundary correction's.
-    """
-    prev, nxt = neighbour_observations(obs)
-    open_run = ~obs & (prev >= 0) & (nxt == obs.shape[0])  # seen before, not after
-    if not open_run.any():
-        return filled
-    n_joints = obs.shape[1]
-    ref = anchor_reference(filled, obs, parents_from_bones(bones, n_joints)) if len(bones) else None
-    horizon = max(1, int(round(EXCURSION_HORIZON_S * rate_hz)))
-    return limit_excursion(filled, obs, open_run, horizon, gain=gain, reference=ref,
-                           ramp=max(1, int(round(ramp_s * rate_hz))))
-
-
 def clean_window(
     positions: np.ndarray,
     confidence: np.ndarray | None,
@@ -711,7 +329,7 @@ def clean_window(
     fits, supports, dev_sums, dev_counts = [], [], [], []
     best = None  # one half-width for the window (local off): the most rigid
     for h in widths:
-        fit_h, resid_h, sup_h = _robust_fit(x, prior, h, cfg.scales_m)
+        fit_h, resid_h, sup_h = robust_fit(x, prior, h, cfg.scales_m)
         est_h = _estimate(x, obs3, fit_h, resid_h, cfg)
         if local:
             s_h, n_h = _frame_bone_deviation(est_h, obs, rigid, cfg.min_bone_m)
@@ -741,12 +359,12 @@ def clean_window(
         spreads["local"] = spread(_estimate(x, obs3, fit, resid, cfg))
         sup = take_fractional(np.array(supports), index)
         # of a full window: where a fit has less inlier support, the median helps
-        full = np.interp(index, np.arange(len(widths)), [_kernel_mass(w) for w in widths])[:, None, None]
+        full = np.interp(index, np.arange(len(widths)), [kernel_mass(w) for w in widths])[:, None, None]
         info["local_half_width_frames"] = np.interp(index, np.arange(len(widths)), widths)
     else:
         h, fit, resid, sup = best
         chosen = h
-        full = _kernel_mass(h)
+        full = kernel_mass(h)
     if cfg.median_fallback:
         # the median's answer is unbiased for symmetric noise, however heavy: a fallback
         # for windows too short or too fast for any local fit to find the clean samples,
@@ -784,7 +402,7 @@ def clean_window(
     # stage 3: is what is left white sensor noise (smooth it) or motion detail (keep it)?
     wc = np.repeat(prior, 3, axis=1).reshape(n_frames, -1)
     yc = np.where(obs3, cleaned, 0.0).reshape(n_frames, -1)
-    s_small, s_large = (_residual_scale(yc, wc, hh) for hh in (2, 4))
+    s_small, s_large = (residual_scale(yc, wc, hh) for hh in (2, 4))
     ratio = s_large / s_small if s_small > 0 else np.inf
     info.update(noise_small_m=s_small, noise_large_m=s_large, noise_ratio=ratio)
     # a soft gate: the ratio of one 2 s window is a noisy statistic, and a hard threshold
@@ -797,7 +415,8 @@ def clean_window(
     # its blended output (streamfix.streaming.solver_api.NOISE_SHARE_KEY)
     info["sensor_noise_share"] = share if s_large > cfg.smooth_floor_m else 0.0
     if s_large > cfg.smooth_floor_m and share > 0:
-        sm, hs = motion_adaptive_smooth(yc, wc, rate_hz, cfg)
+        sm, hs = motion_adaptive_smooth(yc, wc, rate_hz, cfg.smooth_window_s, cfg.smooth_short_s,
+                                        cfg.smooth_bias_m)
         cleaned = np.where(obs3, share * sm.reshape(x.shape) + (1.0 - share) * cleaned, cleaned)
         info["smooth_half_width_frames"] = hs
         info["smooth_share"] = share
@@ -827,7 +446,7 @@ def clean_window(
                 offset, _ = interpolate_linear(np.where(obs3, cleaned - filled, np.nan), obs)
                 filled = filled + np.nan_to_num(offset)
             if cfg.open_gap_gain is not None:
-                filled = _limit_open_gaps(filled, obs, bones, rate_hz, cfg.open_gap_gain, cfg.open_gap_ramp_s)
+                filled = limit_open_gaps(filled, obs, bones, rate_hz, cfg.open_gap_gain, cfg.open_gap_ramp_s)
         if cfg.use_solver:
             blackout = ~obs.any(axis=1)
             if blackout.any():
@@ -861,7 +480,7 @@ def clean_window(
             if band is not None and band.any():  # no play anywhere (noisy ends, guesses): the lengths themselves
                 play_frames = int(round(cfg.projection_play_smooth_s * rate_hz))
                 targets = length_targets(cleaned, bones, bl, band, play_frames)
-            projected = _project_pbd(cleaned, bones, targets, cfg.projection_iterations, inv_mass)
+            projected = project_pbd(cleaned, bones, targets, cfg.projection_iterations, inv_mass)
             share = noise_share(noise, cfg.projection_noise_floor_m)
             cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s)
             info["joint_noise_m"] = noise

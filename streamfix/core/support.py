@@ -48,7 +48,7 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from .filters import odd_window, running_median
-from .pipeline import fit_local_quadratic
+from .local_poly import fit_local_quadratic
 
 __all__ = [
     "SupportConfig",
