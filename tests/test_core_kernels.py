@@ -167,6 +167,22 @@ def test_bone_spread_kernel_is_bit_identical(kinect, monkeypatch):
     assert pipeline._bone_spread(x, observed, bones, 10.0) == 0.0   # no bone long enough
 
 
+def test_worst_bone_quantile_compiled_equals_numpy(kinect, monkeypatch):
+    x, conf, bones = kinect
+    x = x[:61].copy()
+    observed = conf[:61] >= 1.0               # tracked only: bones with gaps
+    observed[:, 4] = False                    # a joint never seen
+    x[5, 2] = np.nan                          # an observed joint without a value
+    x[20:26, 7] += 0.15                       # a hand thrown for 6 frames
+    cases = [(x, observed, 0.02, q) for q in (0.5, 0.9, 1.0)] + [(x, np.ones_like(observed), 0.2, 0.9)]
+    fast = [pipeline._worst_bone_quantile(p, o, bones, m, q) for p, o, m, q in cases]
+    monkeypatch.setattr(kernels, "COMPILED", False)
+    ref = [pipeline._worst_bone_quantile(p, o, bones, m, q) for p, o, m, q in cases]
+    assert fast == ref
+    assert ref[2] > 0.1 > ref[0] > 0          # the thrown hand's bones are each frame's worst there
+    assert pipeline._worst_bone_quantile(x, observed, bones, 10.0, 0.9) == 0.0   # no bone long enough
+
+
 @pytest.mark.parametrize("median, keeps_buffer", [("_select_median_compiled", False), ("_rank_median_compiled", True)])
 def test_compiled_medians_are_the_sorted_median_bit_for_bit(median, keeps_buffer):
     """The bone spread's medians come from an in-place selection and the live gate's (7-21

@@ -30,7 +30,11 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    stands alone only where its median absolute residual is at most 1.5x the chosen fit's
    (under heavy corruption the fit's residual is as large as the median's). Without it,
    short fast takes of the sensor protocol's noise came out worse than the input
-   (``benchmarks/results/sensor.md``, per take). **Scored where the output is used**:
+   (``benchmarks/results/sensor.md``, per take). **Nor where it follows a jump**
+   (``fallback_worst_bone_quantile``): each bone's median over time ignores a limb that
+   jumps for a few frames, so a median that follows the jump scores as rigid as a fit that
+   rejects it; each frame's worst bone does not (:func:`_worst_bone_quantile`), and the
+   median stands alone only where that is no worse than the fit's. **Scored where the output is used**:
    ``serve`` publishes a frame from windows where it lies 6-15 frames from the newest, so the
    engine has the score taken over the newest frames its blend uses (``score_newest_frames``:
    lookahead + hop + crossfade, plus the widest fit's half-width); over the whole 2 s window, a wide fit that
@@ -50,8 +54,8 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    while the fit's do not is fast motion, not an outlier, and keeps its samples
    (``keep_rigid_motion``, :mod:`streamfix.core.rigid_motion`).
 3. **Noise-matched smoothing** (:mod:`streamfix.core.adaptive_smoothing`). What is left
-   after outlier removal is either motion detail (keep it) or white sensor noise (smooth it). The two are told apart by how
-   the robust scale of local-quadratic residuals grows with the window: white noise
+   after outlier removal is either motion detail (keep it) or white sensor noise (smooth
+   it). The two are told apart by how the robust scale of local-quadratic residuals grows with the window: white noise
    gives nearly the same scale at half-widths 2 and 4 frames (ratio ~1.3-1.6 on all
    our Kinect files), fitting real motion leaves a bias growing like h^4 (ratio 2-4 on
    clean or lightly corrupted mocap). When the ratio is below ``white_noise_ratio``
@@ -68,8 +72,8 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    against Vicon on UI-PRMD (``benchmarks/bench_paired.py``) with the paper protocol's
    bars checked alongside (``benchmarks/bench_accuracy.py``).
 4. **Solver for what is missing** (around it, :mod:`streamfix.core.window_gaps`).
-   Joint-frames with no observation (gaps) are recovered by :func:`streamfix.core.alm.solve` (mode ``solver_mode``, low rank +
-   isometry [+ wavelet]) run on the cleaned window, where spatial correlation across
+   Joint-frames with no observation (gaps) are recovered by
+   :func:`streamfix.core.alm.solve` (mode ``solver_mode``, low rank + isometry [+ wavelet]) run on the cleaned window, where spatial correlation across
    joints beats temporal interpolation over 10-60 frame gaps. The solver's offset from
    the observations at each gap's two ends is ramped linearly across the gap
    (``boundary_correction``), so a filled run meets its neighbours without a jump. A gap
@@ -127,11 +131,12 @@ from .bone_projection import (joint_noise_scale, noise_share, project_bone_lengt
 from .excursion import EXCURSION_GAIN
 from .filters import median_savgol
 from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths
-from .isometry import bone_length_deviations, estimate_bone_lengths
+from .isometry import bone_length_deviations, bone_lengths_per_frame, estimate_bone_lengths
 from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
 from .local_poly import kernel_mass, residual_scale
 from .local_width import frame_bone_deviation, frame_sums, local_width_index, take_fractional
 from .rigid_motion import rigid_motion
+from .robust_stats import nanmedian
 from .robust_fit import robust_fit
 from .window_gaps import fill_short_gaps, limit_open_gaps
 
@@ -152,6 +157,9 @@ class PipelineConfig:
     fallback_margin: float = 1.0
     # the median candidate alone only while its residual is at most this x the best fit's (None = always)
     fallback_max_residual_ratio: float | None = 1.5
+    # ... and only while, at this quantile over frames of each frame's worst bone deviation, it
+    # breaks bones no more than the fit (None = not asked): see _worst_bone_quantile
+    fallback_worst_bone_quantile: float | None = 0.9
     blend_support: float = 0.5
     min_bone_m: float = 0.02
     outlier_threshold_m: float = 0.01
@@ -263,6 +271,31 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
     dev = bone_length_deviations(positions, observed, bones, min_bone_m)
     dev = dev[np.isfinite(dev)]
     return float(dev.mean()) if dev.size else 0.0
+
+
+def _worst_bone_quantile(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float,
+                         quantile: float) -> float:
+    """The ``quantile`` over frames of each frame's largest ``|l_t - median_t l|`` (m) over the
+    bones :func:`_bone_spread` counts; 0 where no bone is seen.
+
+    Why: :func:`_bone_spread` takes each bone's median over time, so an estimate that follows
+    a limb jumping for a few frames (a sensor's gross failure) scores as rigid as one that
+    rejects it; the jump stretches at least the bone joining the limb to the body there, which
+    each frame's worst bone shows.
+    """
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if kernels.COMPILED and len(b):
+        counted, per_frame = kernels.bone_spread_deviations(positions, observed, b, min_bone_m, frames=True)
+        dev = per_frame[:, np.isfinite(counted)]
+    else:
+        seen = observed[:, b[:, 0]] & observed[:, b[:, 1]]
+        lengths = np.where(seen, bone_lengths_per_frame(positions, b), np.nan)
+        typical = nanmedian(lengths, axis=0)
+        with np.errstate(invalid="ignore"):
+            dev = np.abs(lengths - typical)[:, typical > min_bone_m]
+    worst = np.max(np.where(np.isfinite(dev), dev, -1.0), axis=1, initial=-1.0)
+    worst = worst[worst >= 0]
+    return float(np.quantile(worst, quantile)) if worst.size else 0.0
 
 
 def _frame_bone_deviation(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
@@ -383,7 +416,20 @@ def clean_window(
         ratio = _median_abs(med_resid) / r_fit if r_fit > 0 else np.inf
         info["median_residual_ratio"] = ratio
         biased = cfg.fallback_max_residual_ratio is not None and ratio > cfg.fallback_max_residual_ratio
-        if not biased and spreads["median_savgol"] < cfg.fallback_margin * min(spreads[fit_key], spreads["blend"]):
+        median_wins = not biased and spreads["median_savgol"] < cfg.fallback_margin * min(spreads[fit_key],
+                                                                                       spreads["blend"])
+        q = cfg.fallback_worst_bone_quantile
+        if median_wins and q is not None and len(rigid):
+            # ... nor can the window's score see it follow a limb that jumps for a few frames (a
+            # minority of frames, which each bone's median over time ignores); each frame's
+            # worst bone can: the median stands alone only where it breaks bones no more than
+            # the fit does there
+            t_med = _worst_bone_quantile(med[scored], obs[scored], rigid, cfg.min_bone_m, q)
+            t_fit = _worst_bone_quantile(_estimate(x, obs3, fit, resid, cfg)[scored], obs[scored], rigid,
+                                         cfg.min_bone_m, q)
+            info["worst_bone_m"] = {"median_savgol": t_med, fit_key: t_fit}
+            median_wins = t_med <= t_fit
+        if median_wins:
             chosen, fit, resid = "median_savgol", med, med_resid
         elif spreads["blend"] < spreads[fit_key]:
             chosen, fit, resid = "blend", blend, blend_resid
