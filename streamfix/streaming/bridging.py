@@ -108,6 +108,16 @@ to the low-rank solver and the long-gap bridge: a third of the engine's time on 
 recordings, for a KERAAL score within 0.1 mm. Nothing is judged before the engine has the
 body's lengths. ``tests/test_dislocated.py`` measures it on the KERAAL take.
 
+Limbs that jumped as one piece released (``release_jumps``, on by default)
+-------------------------------------------------------------------------
+A forearm with its hand, or a shin with its foot, that the sensor moved by a decimetre or
+more for 0.1-0.4 s and put back keeps its own bones, so the window's robust fit followed
+it. One bone off its length abruptly for such a run, while the bones below its distal joint
+and the other bones at its proximal joint keep theirs, says the distal side jumped
+(:mod:`streamfix.core.limb_jumps`): those samples become missing, flagged ``recovered``,
+and the window pipeline fills them in time (closed gaps up to ``PipelineConfig.time_gap_s``
+are each joint's cubic spline). ``benchmarks/results/sensor.md`` (``jump``) has the figures.
+
 Inferred limbs checked against the prior (``verify_inferred``, off by default)
 -----------------------------------------------------------------------------
 A sensor that loses a limb keeps reporting it, flagged inferred: frozen in its last pose
@@ -276,8 +286,8 @@ class BridgingWindowSolver:
     ``travel_speed_mps``: the excursion-limited fills (PCA's, the prior's arms) are limited
     unless the body travels this fast (:data:`TRAVEL_SPEED_MPS`; None = always limited).
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
-    :data:`HISTORY_S`). ``release_frozen`` / ``release_dislocated`` / ``verify_inferred`` /
-    ``foot_support`` / ``undo_swaps``: the real-sensor stages in the module doc.
+    :data:`HISTORY_S`). ``release_frozen`` / ``release_dislocated`` / ``release_jumps`` /
+    ``verify_inferred`` / ``foot_support`` / ``undo_swaps``: the real-sensor stages in the module doc.
     """
 
     wants_history = True
@@ -303,6 +313,7 @@ class BridgingWindowSolver:
         verify_inferred: bool = False,
         release_frozen: bool = True,
         release_dislocated: bool = True,
+        release_jumps: bool = True,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -319,6 +330,7 @@ class BridgingWindowSolver:
         self.verify_inferred = bool(verify_inferred)
         self.release_frozen = bool(release_frozen)
         self.release_dislocated = bool(release_dislocated)
+        self.release_jumps = bool(release_jumps)
         self._limb_joints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # limb joints, mirrors
         if prior_method not in ("latent", "encode"):
             raise ValueError(f"prior_method must be 'latent' or 'encode', got {prior_method!r}")
@@ -595,6 +607,17 @@ class BridgingWindowSolver:
                 x = np.where((dislocated & ~placed)[..., None], np.nan, x)
                 obs = conf > 0
                 replaced = dislocated if replaced is None else (replaced | dislocated)
+        if self.release_jumps and len(bones):
+            # a limb that jumped as one piece for a few frames (core/limb_jumps.py): its own
+            # bones keep their lengths, so the robust fit would follow it; the gap fill replaces it
+            from ..core.limb_jumps import jumped_limbs
+
+            jumped = jumped_limbs(x, obs, bones, bone_lengths, rate_hz)
+            if jumped.any():
+                x = np.where(jumped[..., None], np.nan, x)
+                conf = np.where(jumped, 0.0, conf)
+                obs = conf > 0
+                replaced = jumped if replaced is None else (replaced | jumped)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
         if replaced is None:
