@@ -15,8 +15,8 @@ What counts as long (frames; ``T`` = window length)
 ----------------------------------------------------
 * a joint whose run of consecutive missing frames *within the window* is
   ``>= long_gap_frames(T, rate) = max(LONG_GAP_MIN, ceil(min(T, GAP_SCALE_MAX_S * rate) * LONG_GAP_FRACTION))``
-  frames (1/3 of the window, or of 3 s for longer windows: 20 frames = 0.67 s at the default
-  W = 60 / 30 Hz). A joint with no observation in the whole window is always long;
+  frames (1/3 of the window, or of 2 s for longer windows: 20 frames = 0.67 s at the default
+  W = 60 / 30 Hz, on either schedule). A joint with no observation in the whole window is always long;
 * a blackout: a run of ``>= BLACKOUT_MIN_FRAMES`` (3) consecutive frames in which
   fewer than 3 joints are observed (nothing in the frame ties the joints to each
   other; measured: the solver alone leaves such frames at the linear interpolation).
@@ -168,12 +168,15 @@ OPEN_GAP_FRACTION = 1.0 / 6.0
 """... or this fraction when the run is still open at the window's end (no far end)."""
 LONG_GAP_MIN = 4
 """... but never fewer than this many frames."""
-GAP_SCALE_MAX_S = 3.0
+GAP_SCALE_MAX_S = 2.0
 """The window length (s) those fractions refer to at most: a joint missing for a second is as
-far beyond the low-rank fit in a 12 s window as in a 3 s one. With the fractions of the whole
+far beyond the low-rank fit in a 12 s window as in a 2 s one. With the fractions of the whole
 window, a 12 s file window (``streamfix clean --window``) left 1-4 s limb gaps to the fit, which
-placed a walking leg decimetres off (``tests/test_integration_streaming_gaps.py``). Serve's 2 s
-window is below it; the file schedule's windows (``streaming.config``) judge gaps by 3 s."""
+placed a walking leg decimetres off (``tests/test_integration_streaming_gaps.py``). The file
+schedule's windows (``streaming.config``) judge gaps as serve's 2 s window does: with 3 s, a
+forearm or shin lost for 0.7-1 s was still the fit's, which put it 11-16 cm off against 6-8 cm
+bridged (limb segments dropped on the CMU and Xia takes), and the sensor protocol's dropped
+and frozen limbs came out a few mm worse (``benchmarks/results/sensor.md``)."""
 BLACKOUT_MIN_FRAMES = 3
 """Runs of this many (or more) frames with fewer than 3 observed joints are bridged."""
 BLACKOUT_JOINTS = 3
