@@ -53,7 +53,7 @@ from .skeletons import Skeleton, get_skeleton
 __all__ = ["clean", "MODES"]
 
 MODES = {
-    "offline": "what `streamfix clean` writes: gap filler on long gaps, then the streaming engine (file schedule)",
+    "offline": "what `streamfix clean` writes: the gap filler on marker sets without bones, then the streaming engine (file schedule)",
     "stream": "what `streamfix serve` publishes on `clean`",
     "live": "what `streamfix serve` publishes on `live` (causal, no lookahead)",
 }

@@ -51,7 +51,7 @@ class ArchiveOptions:
 
     window, hop, lookahead: frames, lookahead_s: seconds (None = the schedule's, at the
     file's rate). schedule: ``file`` or ``serve`` (:func:`streamfix.streaming.config.schedule_config`).
-    gapfill: run the gap filler on long gaps. training: reference takes for it.
+    gapfill: run the gap filler on marker sets without bones. training: reference takes for it.
     keep_filled: keep frames synthesised for sensor drops. prior: a trained prior's card
     or directory (None = the shipped one).
     """

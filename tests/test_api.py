@@ -1,7 +1,7 @@
 """``streamfix.clean``: the Python API equals the command it names, checks its input, and its docs run.
 
 * ``offline`` equals the file ``streamfix clean`` writes (a real Kinect take with a long
-  gap, so the gap filler runs), ``stream`` and ``live`` equal what a real
+  gap, which the engine bridges), ``stream`` and ``live`` equal what a real
   ``streamfix serve --sync`` publishes on ``clean`` and ``live`` for the same frames;
 * the module's doctests and the example in ``docs/PYTHON_API.md`` run as written.
 """
@@ -30,7 +30,7 @@ def wave(shared_data) -> Motion:
     """A real Kinect v2 take on a uniform clock (the API's frames are uniformly spaced), a 40-frame wrist gap."""
     m = read_motion(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
     pos = m.positions.copy()
-    pos[100:140, m.skeleton.index("WristRight")] = np.nan  # > a third of the 2 s window: the gap filler runs
+    pos[100:140, m.skeleton.index("WristRight")] = np.nan  # > a third of the 2 s window: bridged
     return Motion.from_positions(pos, m.skeleton, m.rate_hz, confidence=np.where(np.isfinite(pos[..., 0]), m.confidence, 0))
 
 
@@ -81,7 +81,7 @@ def test_offline_mode_is_what_streamfix_clean_writes(wave, tmp_path):
     np.testing.assert_array_equal(recovered, written.recovered)
     wrist = wave.skeleton.index("WristRight")
     assert recovered[100:140, wrist].all() and np.isfinite(cleaned).all()
-    # the stream mode does not run the gap filler: the two modes really differ inside the gap
+    # the stream mode runs serve's schedule: the two modes really differ inside the gap
     stream, _ = streamfix.clean(wave.positions, wave.rate_hz, wave.skeleton, wave.confidence, mode="stream")
     assert np.abs(stream[100:140, wrist] - cleaned[100:140, wrist]).max() > 1e-4
 

@@ -53,3 +53,22 @@ def test_clean_training_option_accepts_a_reference_take(rolling_slice, shared_da
     assert "2 training takes" in line
     c = read_motion(out)
     assert np.isfinite(c.positions).all(axis=2)[:, m.observed.any(axis=0)].all()
+
+
+def test_a_joint_file_with_long_gaps_goes_to_the_engine_as_it_is(shared_data):
+    """A skeleton's long gaps are the engine's to bridge (history, prior, time), not the PCA gap
+    filler's: the filler left 2.6x the engine's error on the sensor protocol's lost limbs
+    (streamfix/cleaning.py). Reference takes given for it are said to go unused."""
+    from streamfix.cleaning import clean_recording
+    from streamfix.streaming.config import EngineConfig
+    from streamfix.streaming.offline import clean_motion
+
+    m = read_motion(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
+    pos = m.positions.copy()
+    pos[100:160, m.skeleton.index("WristRight")] = np.nan  # 2 s: a long gap on either schedule
+    m = type(m)(pos, np.where(np.isfinite(pos[..., 0]), m.confidence, 0.0), m.timestamps, m.rate_hz, m.skeleton)
+    result = clean_recording(m, training=[str(shared_data / "kinect_v2" / "Ges02_balancinghands.csv")])
+    assert result.gapfilled is None and any("reference takes unused" in n for n in result.notes)
+    engine, _ = clean_motion(m, EngineConfig.for_files(m.rate_hz))
+    np.testing.assert_array_equal(result.motion.positions, engine.positions)
+    assert result.motion.recovered[100:160, m.skeleton.index("WristRight")].all()

@@ -45,9 +45,9 @@ def test_blackout_records(shared_data):
 
 
 def test_engine_fills_marker_blackouts_close_to_the_spline(shared_data):
-    """The streaming engine alone (what ``serve`` runs; ``clean`` runs the gap filler first
-    on marker files) across whole-frame blackouts of real markers: within 1.1x the cubic
-    spline's error. Its PCA bridge used to fill them, at 2x the spline's error here."""
+    """What ``clean`` writes for a marker file (the gap filler, then the streaming engine)
+    across whole-frame blackouts of real markers: within 1.1x the cubic spline's error. The
+    engine's PCA bridge used to fill them, at 2x the spline's error here."""
     from streamfix.core.interpolate import interpolate_spline
     from streamfix.evaluation.registry import load_motion, run_method
 

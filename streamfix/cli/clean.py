@@ -4,10 +4,7 @@ The file is read with :func:`streamfix.io.read_motion`, passed frame by frame th
 the same :class:`~streamfix.streaming.engine.StreamEngine` that ``streamfix serve``
 runs (synchronous mode, so the result is deterministic and equals serve's ``clean``
 output), and written with :func:`streamfix.io.write_motion` (format from OUT's
-extension). Marker files without bones (C3D), and joint files with a gap of at least a
-third of a window, or of 3 s for longer windows
-(``streamfix.streaming.bridging.long_gap_frames``, the length the streaming solver would
-bridge itself), first go through the gap filler
+extension). Marker files without bones (C3D) first go through the gap filler
 (``streamfix.gapfill.fill_motion_gaps``, Li et al. PCA trained on the take's own
 observed samples plus ``--training`` reference takes): offline the filler sees both
 ends of every gap. Filled samples are flagged recovered in the output (kept by
@@ -58,8 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-gapfill", action="store_true",
                         help="do not run the gap filler on marker files before cleaning")
     parser.add_argument("--training", action="append", default=None, metavar="FILE_OR_DIR",
-                        help="reference takes of the same skeleton / marker set for the gap filler "
-                             "(files or directories; repeatable)")
+                        help="reference takes of the same marker set for the gap filler, which runs on "
+                             "marker files without bones (files or directories; repeatable)")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists (never the input)")
     parser.add_argument("--prior", default=None, metavar="PATH",
                         help="learned prior to use: a model card .json or a directory holding one, as written by "

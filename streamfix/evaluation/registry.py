@@ -5,10 +5,10 @@ A *method* maps a corrupted take to a cleaned one::
     method(positions (T,J,3) m NaN=missing, confidence (T,J), bones (B,2), rate_hz,
            skeleton=None) -> (T,J,3)
 
-``streamfix`` is **what users get** from a recording: the streaming engine's ``clean``
-output on the schedule ``streamfix clean`` runs for files
-(:meth:`~streamfix.streaming.engine.EngineConfig.for_files`, through
-:func:`streamfix.streaming.offline.clean_motion`). ``streamfix_serve`` is the same engine
+``streamfix`` is **what users get** from a recording: what ``streamfix clean`` writes
+(:func:`streamfix.cleaning.clean_recording`: the gap filler for a marker set without bones,
+then the streaming engine's ``clean`` output on the file schedule,
+:meth:`~streamfix.streaming.engine.EngineConfig.for_files`). ``streamfix_serve`` is the same engine
 and window solver on ``serve``'s schedule (:class:`~streamfix.streaming.engine.EngineConfig`
 defaults: the ``clean`` topic a live consumer receives 0.5 s late). Both are reported:
 the file schedule takes each frame from windows that hold it near their middle, which the
@@ -96,11 +96,15 @@ def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serv
 
 def _engine_method(name: str) -> Method:
     def run(x, conf, bones, rate, skeleton=None):
-        from ..streaming.offline import clean_motion
-
         skel = layout_for(bones, x.shape[1], skeleton)
         times = np.arange(x.shape[0], dtype=np.float64) / float(rate)
         motion = Motion(np.asarray(x, dtype=np.float64), np.asarray(conf, dtype=np.float64), times, float(rate), skel)
+        if ENGINE_SCHEDULES[name] == "file":  # exactly what `streamfix clean` writes (the gap filler for markers)
+            from ..cleaning import clean_recording
+
+            return clean_recording(motion, engine_config(name, rate)).motion.positions
+        from ..streaming.offline import clean_motion
+
         out, _ = clean_motion(motion, engine_config(name, rate))
         return out.positions
 
