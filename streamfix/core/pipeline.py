@@ -501,7 +501,11 @@ def clean_window(
                 prev, nxt = neighbour_observations(obs)
                 timed = (missing & (missing_run_lengths(obs) <= max(1, int(round(cfg.time_gap_s * rate_hz))))
                          & (prev >= 0) & (nxt < n_frames))
-            spline = interpolate_spline(base, obs)[0] if timed.any() else None
+            spline = None
+            if timed.any():
+                cols = timed.any(axis=0)  # only the joints with such a gap
+                spline = np.full_like(base, np.nan)
+                spline[:, cols] = interpolate_spline(base[:, cols], obs[:, cols])[0]
             solve_obs = obs | timed
             solve_base = base if spline is None else np.where(timed[..., None], spline, base)
             if solve_obs.all():
