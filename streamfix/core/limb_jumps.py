@@ -90,28 +90,35 @@ def jumped_limbs(
         return out
     seen = obs[:, b[:, 0]] & obs[:, b[:, 1]]
     length = np.where(seen, bone_lengths_per_frame(x, b), np.nan)  # (T, B)
-    target = nanmedian(length, axis=0)
-    if bone_lengths is not None:
-        given = np.asarray(bone_lengths, dtype=np.float64)
-        target = np.where(np.isfinite(given), given, target)
+    given = None if bone_lengths is None else np.asarray(bone_lengths, dtype=np.float64)
+    if given is not None and np.isfinite(given).all():
+        target = given  # the body's lengths (the streaming engine's): no median needed
+    else:
+        target = nanmedian(length, axis=0)
+        if given is not None:
+            target = np.where(np.isfinite(given), given, target)
+    deciding = np.isfinite(target) & (target >= MIN_BONE_M)
     with np.errstate(invalid="ignore"):
         dev = length - target
+        if not (np.abs(dev[:, deciding]) > FLOOR_M).any():
+            return out  # no deciding bone past the floor anywhere: the common window, decided cheaply
         noise = 1.4826 * nanmedian(np.abs(dev - nanmedian(dev, axis=0)), axis=0)
         threshold = np.maximum(FLOOR_M, NOISE_MULTIPLE * np.nan_to_num(noise))  # (B,)
         off = np.abs(dev) > threshold  # NaN (unseen): not off
-    deciding = np.isfinite(target) & (target >= MIN_BONE_M)
     if not (off[:, deciding]).any() or off[:, deciding].mean() > MAX_DEVIANT_SHARE:
         return out
     min_run = max(1, int(round(MIN_RUN_S * rate_hz)))
     max_run = max(min_run, int(round(MAX_RUN_S * rate_hz)))
+    run = missing_run_lengths(~off)  # (T, B): each off sample's run length
+    candidate = off & (run >= min_run) & (run <= max_run) & deciding[None, :]
+    if not candidate.any():
+        return out
     parents = parents_from_bones(b, J)
-    for k in np.flatnonzero(deciding & off.any(axis=0)):
+    for k in np.flatnonzero(candidate.any(axis=0)):
         p, c = b[k]
         # the other bones at the proximal joint and the bones below the distal one
         neighbours = np.flatnonzero(((b[:, 0] == p) | (b[:, 1] == p) | (b[:, 0] == c)) & (np.arange(len(b)) != k))
-        run = missing_run_lengths(~off[:, k])
-        runs = off[:, k] & (run >= min_run) & (run <= max_run)
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], runs.astype(np.int8), [0]])))
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], candidate[:, k].astype(np.int8), [0]])))
         for s, e in zip(edges[::2], edges[1::2]):  # each run [s, e): a few events per window at most
             if s == 0 or e == T or not (seen[s - 1, k] and seen[e, k]):
                 continue  # open at the window's edge, or no good frame beside it: not judged here
