@@ -56,12 +56,14 @@ def test_nothing_is_released_on_clean_motion_or_real_kinect_recordings(walk, sha
 
 def test_what_users_get_removes_a_forearm_thrown_as_one_piece(walk):
     """The window cleaner alone keeps it (tests/test_core_pipeline.py's known failure); the
-    engine's bridge releases it and the window fills the 6 frames in time."""
+    engine's bridge releases it and the window fills the 6 frames in time. On serve's
+    schedule the window before saw the jump still open at its newest frames and kept it:
+    the blend drops what that window left there (solver_api.RELEASED_KEY)."""
     truth, x = walk
     x = x.copy()
     x[150:156, ARM] += STEP
     thrown = float(np.linalg.norm(x[150:156, ARM] - truth[150:156, ARM], axis=2).mean())
-    for method, share in (("streamfix", 0.2), ("streamfix_serve", 0.5)):
+    for method in ("streamfix", "streamfix_serve"):
         y = run_method(method, x, np.ones(x.shape[:2]), KINECT_V2.bone_array, 30.0, skeleton=KINECT_V2)
         err = float(np.linalg.norm(y[150:156, ARM] - truth[150:156, ARM], axis=2).mean())
-        assert err < share * thrown, (method, err, thrown)  # measured 15 and 67 of 170 mm
+        assert err < 0.2 * thrown, (method, err, thrown)  # measured 14 and 18 of 170 mm

@@ -610,6 +610,7 @@ class BridgingWindowSolver:
                 x = np.where((dislocated & ~placed)[..., None], np.nan, x)
                 obs = conf > 0
                 replaced = dislocated if replaced is None else (replaced | dislocated)
+        dropped = released  # samples whose older windows' values the engine's blend drops
         if self.release_jumps and len(bones):
             # a limb that jumped as one piece for a few frames (core/limb_jumps.py): its own
             # bones keep their lengths, so the robust fit would follow it; the gap fill replaces it
@@ -621,14 +622,18 @@ class BridgingWindowSolver:
                 conf = np.where(jumped, 0.0, conf)
                 obs = conf > 0
                 replaced = jumped if replaced is None else (replaced | jumped)
+                # an older window saw the jump at its newest frames, still open, and kept it:
+                # the engine's blend drops what it left there, as for a frozen release
+                dropped = jumped if released is None else (released | jumped)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name)
         if replaced is None:
             return res
         res = _with_recovered(res, replaced)
         if released is not None:
-            res.state = ReleaseState(res.state, released)
-            res.info[RELEASED_KEY] = released  # the engine's blend drops older windows that kept them
+            res.state = ReleaseState(res.state, released)  # frozen runs go on being released
+        if dropped is not None:
+            res.info[RELEASED_KEY] = dropped  # the engine's blend drops older windows that kept them
         if plant_weight is not None:
             # the planted legs are a guess with the sensor hip's jitter in them (core/support.py)
             from ..core.support import SupportConfig, smooth_planted

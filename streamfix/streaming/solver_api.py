@@ -17,8 +17,9 @@ that the engine may smooth at the output (:func:`~streamfix.streaming.overlap_ad
 
 RELEASED_KEY = "released"
 """Key of a window solver's ``info``: ``(T, J)`` bool, the samples it judged the sensor's
-frozen guess and replaced (:mod:`streamfix.streaming.frozen_release`). An older window that
-saw less of the run kept them as measurements; the engine drops what those blended there
+frozen guess or a limb's jump and replaced (:mod:`streamfix.streaming.frozen_release`,
+:mod:`streamfix.core.limb_jumps`). An older window that saw less of the run kept them as
+measurements; the engine drops what those blended there
 (:func:`~streamfix.streaming.overlap_add.blend_window`)."""
 
 WindowSolver = Callable[..., Any]
