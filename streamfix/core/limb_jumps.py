@@ -79,7 +79,7 @@ def jumped_limbs(
     """``(T, J)`` bool: the observed samples of a limb that jumped as one piece (module doc).
 
     ``bone_lengths`` ``(B,)`` m: the body's lengths (NaN or None: the bone's median over the
-    window's observed frames); ``rate_hz`` sets the longest run (``MAX_RUN_S``).
+    window's observed frames); ``rate_hz`` turns ``MIN_RUN_S`` and ``MAX_RUN_S`` into frames.
     """
     x = np.asarray(positions, dtype=np.float64)
     obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
