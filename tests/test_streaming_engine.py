@@ -306,8 +306,13 @@ def test_threaded_push_never_blocks_on_a_stalled_solver_and_degrades(kinect):
     out: list = []
 
     def feed():
-        for f in frames:
+        for i, f in enumerate(frames):
             out.extend(engine.push(f))
+            if i == 90:
+                # the pool's thread runs niced below this one: on a busy machine it could reach the
+                # first window only after the last push, and nothing would have stalled; the
+                # stall starts here, and the rest of the frames are pushed against it
+                solver.started.wait(timeout=10)
 
     t = threading.Thread(target=feed, daemon=True)
     t.start()
