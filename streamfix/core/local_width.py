@@ -19,21 +19,30 @@ from scipy.ndimage import correlate1d
 from .isometry import bone_lengths_per_frame
 from .robust_stats import nanmedian
 
-__all__ = ["frame_bone_deviation", "frame_sums", "local_width_index", "take_fractional"]
+__all__ = ["frame_bone_deviation", "frame_bone_deviations", "frame_sums", "local_width_index", "take_fractional"]
 
 
-def frame_bone_deviation(
+def frame_bone_deviations(
     positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame ``(T,)``: the sum over bones of ``|l_t - median_t l|`` (m) and how many bones
-    it sums (both ends ``observed``, typical length above ``min_bone_m``: the bones
-    :func:`streamfix.core.isometry.bone_length_deviations` counts)."""
+    """``(deviations (T, B), counted (B,))``: each bone's ``|l_t - median_t l|`` (m; NaN where
+    an end is not ``observed``) and whether the bone counts (typical length above
+    ``min_bone_m``: the bones :func:`streamfix.core.isometry.bone_length_deviations` counts).
+    The numpy reference of :func:`streamfix.core.kernels.bone_spread_deviations` with ``frames=True``."""
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     seen = observed[:, b[:, 0]] & observed[:, b[:, 1]]
     lengths = np.where(seen, bone_lengths_per_frame(positions, b), np.nan)
     typical = nanmedian(lengths, axis=0)
     with np.errstate(invalid="ignore"):
-        return frame_sums(np.abs(lengths - typical), typical > min_bone_m)
+        return np.abs(lengths - typical), typical > min_bone_m
+
+
+def frame_bone_deviation(
+    positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame ``(T,)``: the sum over the counted bones of ``|l_t - median_t l|`` (m) and how
+    many bones it sums (:func:`frame_bone_deviations`)."""
+    return frame_sums(*frame_bone_deviations(positions, observed, bones, min_bone_m))
 
 
 def frame_sums(deviations: np.ndarray, counted_bones: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -138,15 +138,14 @@ from .bone_projection import (joint_noise_scale, noise_share, project_bone_lengt
                               projection_inverse_mass, smooth_projection, tracking_failures)
 from .excursion import EXCURSION_GAIN
 from .filters import median_savgol
-from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths, neighbour_observations
-from .isometry import bone_length_deviations, bone_lengths_per_frame, estimate_bone_lengths
+from .interpolate import interpolate_linear, interpolate_spline, missing_run_lengths
+from .isometry import bone_length_deviations, estimate_bone_lengths
 from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
 from .local_poly import kernel_mass, residual_scale
-from .local_width import frame_bone_deviation, frame_sums, local_width_index, take_fractional
+from .local_width import frame_bone_deviations, frame_sums, local_width_index, take_fractional
 from .rigid_motion import rigid_motion
-from .robust_stats import nanmedian
 from .robust_fit import robust_fit
-from .window_gaps import fill_short_gaps, limit_open_gaps
+from .window_gaps import fill_short_gaps, limit_open_gaps, spline_closed_gaps
 
 __all__ = ["PipelineConfig", "WindowResult", "clean_window"]
 
@@ -283,6 +282,23 @@ def _bone_spread(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
     return float(dev.mean()) if dev.size else 0.0
 
 
+def _frame_deviations(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
+                      min_bone_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`streamfix.core.local_width.frame_bone_deviations` (``(T, B)`` deviations, ``(B,)``
+    counted), from the compiled bone lengths when the kernels are compiled (the same values)."""
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if not (kernels.COMPILED and len(b)):
+        return frame_bone_deviations(positions, observed, b, min_bone_m)
+    per_bone, per_frame = kernels.bone_spread_deviations(positions, observed, b, min_bone_m, frames=True)
+    return per_frame, np.isfinite(per_bone)
+
+
+def _frame_bone_deviation(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
+                          min_bone_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`streamfix.core.local_width.frame_bone_deviation` of one estimate (:func:`_frame_deviations`)."""
+    return frame_sums(*_frame_deviations(positions, observed, bones, min_bone_m))
+
+
 def _worst_bone_quantile(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray, min_bone_m: float,
                          quantile: float) -> float:
     """The ``quantile`` over frames of each frame's largest ``|l_t - median_t l|`` (m) over the
@@ -293,30 +309,11 @@ def _worst_bone_quantile(positions: np.ndarray, observed: np.ndarray, bones: np.
     rejects it; the jump stretches at least the bone joining the limb to the body there, which
     each frame's worst bone shows.
     """
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    if kernels.COMPILED and len(b):
-        counted, per_frame = kernels.bone_spread_deviations(positions, observed, b, min_bone_m, frames=True)
-        dev = per_frame[:, np.isfinite(counted)]
-    else:
-        seen = observed[:, b[:, 0]] & observed[:, b[:, 1]]
-        lengths = np.where(seen, bone_lengths_per_frame(positions, b), np.nan)
-        typical = nanmedian(lengths, axis=0)
-        with np.errstate(invalid="ignore"):
-            dev = np.abs(lengths - typical)[:, typical > min_bone_m]
+    dev, counted = _frame_deviations(positions, observed, bones, min_bone_m)
+    dev = dev[:, counted]
     worst = np.max(np.where(np.isfinite(dev), dev, -1.0), axis=1, initial=-1.0)
     worst = worst[worst >= 0]
     return float(np.quantile(worst, quantile)) if worst.size else 0.0
-
-
-def _frame_bone_deviation(positions: np.ndarray, observed: np.ndarray, bones: np.ndarray,
-                          min_bone_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`streamfix.core.local_width.frame_bone_deviation` of one estimate, from the
-    compiled bone lengths when the kernels are compiled (the same sums)."""
-    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    if not (kernels.COMPILED and len(b)):
-        return frame_bone_deviation(positions, observed, b, min_bone_m)
-    dev, per_frame = kernels.bone_spread_deviations(positions, observed, b, min_bone_m, frames=True)
-    return frame_sums(per_frame, np.isfinite(dev))
 
 
 # --------------------------------------------------------------------------- the pipeline
@@ -492,22 +489,12 @@ def clean_window(
             info["short_gaps_only"] = True
             out_state = state  # the solver did not run: its warm start carries on to the next window
         elif cfg.use_solver:
-            # closed gaps up to time_gap_s: each joint's cubic spline through its samples (over a
-            # fraction of a second time knows a limb better than the low-rank model, which put a
-            # forearm lost for 4 frames of a fast swing at its mean pose, 0.5 m off); the solver
-            # takes the rest, with the spline's values as data
-            timed = np.zeros_like(obs)
+            # closed gaps up to time_gap_s: each joint's cubic spline (core.window_gaps), which
+            # the solver takes as data; the solver fills the rest
+            solve_base, timed = base, np.zeros_like(obs)
             if cfg.time_gap_s is not None:
-                prev, nxt = neighbour_observations(obs)
-                timed = (missing & (missing_run_lengths(obs) <= max(1, int(round(cfg.time_gap_s * rate_hz))))
-                         & (prev >= 0) & (nxt < n_frames))
-            spline = None
-            if timed.any():
-                cols = timed.any(axis=0)  # only the joints with such a gap
-                spline = np.full_like(base, np.nan)
-                spline[:, cols] = interpolate_spline(base[:, cols], obs[:, cols])[0]
+                solve_base, timed = spline_closed_gaps(base, obs, max(1, int(round(cfg.time_gap_s * rate_hz))))
             solve_obs = obs | timed
-            solve_base = base if spline is None else np.where(timed[..., None], spline, base)
             if solve_obs.all():
                 filled = solve_base
                 out_state = state  # the solver did not run: its warm start carries on
@@ -523,8 +510,8 @@ def clean_window(
                     filled = filled + np.nan_to_num(offset)
                 if cfg.open_gap_gain is not None:
                     filled = limit_open_gaps(filled, obs, bones, rate_hz, cfg.open_gap_gain, cfg.open_gap_ramp_s)
-                if spline is not None:
-                    filled = np.where(timed[..., None], spline, filled)
+                if timed.any():
+                    filled = np.where(timed[..., None], solve_base, filled)
             info["time_filled"] = int(timed.sum())
         if cfg.use_solver:
             blackout = ~obs.any(axis=1)
