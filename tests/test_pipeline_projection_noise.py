@@ -124,3 +124,32 @@ def test_smooth_projection_only_on_noisy_joints():
     d2 = lambda c: np.abs(np.diff(c, 2, axis=0)).mean()  # noqa: E731
     assert d2(out[:, 1] - est[:, 1]) < 0.5 * d2(proj[:, 1] - est[:, 1])
     assert np.array_equal(smooth_projection(est, proj, np.ones(2), 30.0, 0.0), proj)  # span 0: off
+
+
+def test_smooth_projection_keeps_exact_correction_on_filled_samples():
+    rng = np.random.default_rng(6)
+    est = rng.normal(size=(60, 2, 3))
+    proj = est + rng.normal(scale=0.01, size=est.shape)
+    filled = np.zeros((60, 2), dtype=bool)
+    filled[20:24, 1] = True  # a short fill on the noisy joint: no sensor reading behind it
+    share = noise_share(np.array([0.0, 0.05]), 0.001)
+    out = smooth_projection(est, proj, share, 30.0, 0.2, exact=filled)
+    assert np.array_equal(out[20:24, 1], proj[20:24, 1])
+    smoothed = smooth_projection(est, proj, share, 30.0, 0.2)
+    assert np.array_equal(out[~filled], smoothed[~filled])  # the sensor's samples as before
+
+
+def test_kinect_thumb_spike_is_filled_at_the_thumb_length(comehere):
+    """Ges04's left thumb leaps 16 cm for frames 81-84 (tracked): the window replaces the
+    samples; with the correction smoothed over them as well the fill kept half its length."""
+    m = comehere
+    bones = m.skeleton.bone_array
+    names = m.skeleton.joint_names
+    thumb = [b for b in range(len(bones)) if names[bones[b, 1]] == "ThumbLeft"][0]
+    seg = slice(60, 120)
+    lengths = np.nanmedian(metrics.bone_lengths(m.positions, bones), axis=0)
+    lengths[thumb] = 0.056  # the engine's clean estimate of this thumb
+    res = clean_window(m.positions[seg], m.confidence[seg], bones, lengths, m.rate_hz)
+    assert res.recovered[21:25, bones[thumb, 1]].all()
+    got = metrics.bone_lengths(res.positions, bones)[21:25, thumb]
+    np.testing.assert_allclose(got, 0.056, atol=0.003)

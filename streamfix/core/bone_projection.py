@@ -171,7 +171,8 @@ def projection_inverse_mass(
 
 
 def smooth_projection(
-    estimate: np.ndarray, projected: np.ndarray, share: np.ndarray, rate_hz: float, span_s: float
+    estimate: np.ndarray, projected: np.ndarray, share: np.ndarray, rate_hz: float, span_s: float,
+    exact: np.ndarray | None = None,
 ) -> np.ndarray:
     """``projected`` with the correction ``projected - estimate`` smoothed over time on noisy joints.
 
@@ -182,7 +183,10 @@ def smooth_projection(
     jitter (Ges04_comehere.csv: the projected output jittered more than median +
     Savitzky-Golay, the unprojected one less). Smoothed, a persistent length error is
     still removed and frame-to-frame length noise is left as it was. Exact joints
-    (share 0: mocap) keep the exact projection.
+    (share 0: mocap) keep the exact projection, and so do the samples ``exact`` ``(T, J)``
+    marks (filled or replaced, no sensor reading behind them): their direction carries
+    no sensor jitter, and a smoothed correction would leave a short fill (a thumb's
+    4-frame spike replaced) at the wrong length.
     """
     h = int(round(span_s * rate_hz / 2))
     if h < 2 or not np.any(share > 0):
@@ -191,6 +195,8 @@ def smooth_projection(
     corr = (projected - estimate).reshape(n_frames, -1)
     smooth, _ = fit_local_quadratic(corr, np.ones_like(corr), h)
     a = np.repeat(np.asarray(share, dtype=np.float64), 3)[None, :]
+    if exact is not None and exact.any():
+        a = np.where(np.repeat(exact, 3, axis=1), 0.0, a)
     return estimate + (corr + a * (smooth - corr)).reshape(estimate.shape)
 
 

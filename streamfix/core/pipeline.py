@@ -107,8 +107,10 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    joint's moves in proportion to its variance (a Kinect thumb or hand, not the wrist,
    shoulder and spine behind it), and on noisy joints the correction is smoothed over
    ``projection_smooth_s`` (``smooth_projection``): a steady length correction
-   applied along a short bone whose direction jitters would add jitter. Exact samples
-   (mocap) keep equal shares. **Length play on tracked bones**
+   applied along a short bone whose direction jitters would add jitter; samples the
+   window filled or replaced keep the exact correction (no sensor jitter behind them,
+   and a smoothed one left a thumb's replaced 4-frame spike at half its length). Exact
+   samples (mocap) keep equal shares. **Length play on tracked bones**
    (:mod:`streamfix.core.length_tolerance`): a bone between two tracked, precise joints
    keeps its own length, smoothed over ``projection_play_smooth_s``, while that is within
    ``projection_tolerance`` of the target (less ``projection_tolerance_noise`` x the ends'
@@ -527,6 +529,8 @@ def clean_window(
             filled, _ = interpolate_linear(base, obs)
         cleaned = np.where(obs3, cleaned, filled)
 
+    recovered = missing | outlier.any(axis=2)  # filled or replaced: no sensor reading behind them
+
     # stage 5: bone-length projection
     if cfg.project_bones and len(bones):
         good = obs & ~outlier.any(axis=2)  # observed and kept: the samples whose lengths count
@@ -548,11 +552,11 @@ def clean_window(
                 targets = length_targets(cleaned, bones, bl, band, play_frames)
             projected = project_pbd(cleaned, bones, targets, cfg.projection_iterations, inv_mass)
             share = noise_share(noise, cfg.projection_noise_floor_m)
-            cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s)
+            cleaned = smooth_projection(cleaned, projected, share, rate_hz, cfg.projection_smooth_s,
+                                        exact=recovered)
             info["joint_noise_m"] = noise
         else:
             cleaned = project_bone_lengths(cleaned, bones, bl, cfg.projection_steps, cfg.projection_gamma)
         info["bone_lengths"] = bl
 
-    recovered = missing | outlier.any(axis=2)
     return WindowResult(cleaned, recovered, out_state, iterations, converged, info)
