@@ -382,7 +382,7 @@ def clean_window(
             continue
         spreads[h] = spread(est_h)
         if best is None or spreads[h] < spreads[best[0]]:
-            best = (h, fit_h, resid_h, sup_h)
+            best = (h, fit_h, resid_h, sup_h, est_h)
     if local:
         # each frame takes the half-width whose bones stay rigid around it (core.local_width).
         # The composite is the window's fit everywhere. It used to be kept only where the
@@ -398,13 +398,14 @@ def clean_window(
         h, chosen = None, "local"
         fit = take_fractional(np.array(fits), index)
         resid = np.where(obs3, x - fit, np.nan)
-        spreads["local"] = spread(_estimate(x, obs3, fit, resid, cfg))
+        fit_est = _estimate(x, obs3, fit, resid, cfg)
+        spreads["local"] = spread(fit_est)
         sup = take_fractional(np.array(supports), index)
         # of a full window: where a fit has less inlier support, the median helps
         full = np.interp(index, np.arange(len(widths)), [kernel_mass(w) for w in widths])[:, None, None]
         info["local_half_width_frames"] = np.interp(index, np.arange(len(widths)), widths)
     else:
-        h, fit, resid, sup = best
+        h, fit, resid, sup, fit_est = best
         chosen = h
         full = kernel_mass(h)
     if cfg.median_fallback:
@@ -434,8 +435,7 @@ def clean_window(
             # worst bone can: the median stands alone only where it breaks bones no more than
             # the fit does there
             t_med = _worst_bone_quantile(med[scored], obs[scored], rigid, cfg.min_bone_m, q)
-            t_fit = _worst_bone_quantile(_estimate(x, obs3, fit, resid, cfg)[scored], obs[scored], rigid,
-                                         cfg.min_bone_m, q)
+            t_fit = _worst_bone_quantile(fit_est[scored], obs[scored], rigid, cfg.min_bone_m, q)
             info["worst_bone_m"] = {"median_savgol": t_med, fit_key: t_fit}
             median_wins = t_med <= t_fit
         if median_wins:
