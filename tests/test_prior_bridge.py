@@ -83,6 +83,37 @@ def test_a_walking_bodys_missing_arm_swings_with_the_prior_not_held(shared_data)
     assert free < 0.7 * held, (free, held)
 
 
+def test_a_travelling_bodys_frozen_arm_is_filled_by_the_prior_before_pca_in_serve(shared_data, monkeypatch):
+    """CMU 131_01 (walking), the sensor protocol's frozen right arm (seed 2, 2 s flagged inferred,
+    frames 159-223) through ``serve``'s schedule: PCA on the 5 s of history is ready by then, and
+    its fill of the released arm (a few trunk joints predicting it) stepped off the arm's last
+    sample at the gap's first frame and went on wandering; the prior's fill of the walking body
+    follows the arm."""
+    import streamfix.streaming.bridging as bridging
+    from streamfix.evaluation.registry import run_method
+    from streamfix.evaluation.sensor import _rng, ground_truth
+    from streamfix.sim.sensor_errors import apply_sensor_errors
+
+    path = shared_data / "cmu_bvh" / "131_01.bvh"
+    truth = ground_truth(path, 30.0).positions
+    c = apply_sensor_errors(truth, _rng(2, "freeze", path), ["freeze"], rate_hz=30.0, min_events=1)
+    arm = [KINECT_V2.index(j + "Right") for j in ("Elbow", "Wrist", "Hand", "HandTip", "Thumb")]
+    frozen = c.corrupted.any(axis=0)
+    assert set(np.flatnonzero(frozen)) == set(arm)  # the one event: the right arm below the shoulder
+    rows = c.corrupted[:, arm].any(axis=1)
+
+    def arm_error() -> float:
+        out = run_method("streamfix_serve", c.positions, c.confidence, KINECT_V2.bone_array, 30.0, skeleton=KINECT_V2)
+        return float(np.linalg.norm(out[rows][:, arm] - truth[rows][:, arm], axis=2).mean())
+
+    prior_first = arm_error()
+    monkeypatch.setattr(bridging, "PRIOR_FIRST_WHILE_TRAVELLING", False)
+    pca_first = arm_error()
+    given = float(np.linalg.norm(c.positions[rows][:, arm] - truth[rows][:, arm], axis=2).mean())
+    assert prior_first < 0.7 * pca_first, (prior_first, pca_first)  # measured 79 vs 159 mm
+    assert prior_first < 0.5 * given, (prior_first, given)  # the input: 312 mm
+
+
 @pytest.mark.parametrize("take", ["cmu_bvh/131_02.bvh", "kinect_v2/Ges04_comehere.csv"])
 def test_default_method_is_within_1_1x_of_the_latent_fit_on_the_occlusion_protocol(shared_data, take):
     """Held-out takes, whole joints dropped per window: the engine's default solver against D(z*) alone."""

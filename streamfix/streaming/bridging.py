@@ -32,7 +32,16 @@ Where the fill comes from (first that applies, per sample)
 2. ``prior``: :func:`streamfix.prior.init.fill_long_gaps` (D(z*) shifted to meet the
    observed samples at both ends) when the prior maps the skeleton's layout, on the newest
    frames only: one prior window (the solver's window and the few history frames before it),
-   one latent fit per window solve, which keeps the prior within its latency budget;
+   one latent fit per window solve, which keeps the prior within its latency budget.
+   While the body travels (net speed ``>= TRAVEL_SPEED_MPS``, the excursion limit's rule
+   below) the prior comes before PCA (``PRIOR_FIRST_WHILE_TRAVELLING``): a walking limb swings
+   with the gait of the whole body, which the prior learnt from an hour of motion, while PCA's
+   local templates predict a lost arm from a few trunk joints trained on seconds of history
+   and, on a walking CMU take in ``serve``, stepped off the arm's last sample at the gap's
+   first frame (``tests/test_prior_bridge.py`` holds the two fills of that arm against each
+   other). In place (seated, exercising, gesturing) PCA on the person's own history stays
+   first: with the excursion limit it keeps a still limb near its pose, where the unlimited
+   prior wanders (``tests/test_integration_streaming_gaps.py``, a seated leg);
 3. ``hold``: a joint missing for the whole window with neither source holds its last
    value from the history (counted, so it is never silent); with no history at all it
    is left missing and the window fails (the engine counts a solver error and uses the
@@ -202,6 +211,8 @@ VERIFY_EXCURSION_GAIN: float | None = 1.0
 """Excursion limit of the fill the inferred samples are checked against: looser than the
 gap fill's (its hold baseline is the limb's last tracked pose, which is what a frozen
 limb keeps, so the usual limit pulls the fill onto the very guess being checked)."""
+PRIOR_FIRST_WHILE_TRAVELLING = True
+"""While the body travels (:data:`TRAVEL_SPEED_MPS`), the prior fills before PCA: see the module doc."""
 PRIOR_INIT = "off"
 PRIOR_METHOD = "latent"  # fill from D(z*) ("latent") or D(E(Y)) ("encode", cheaper)
 """Prior as the solver's start on the frames entering a window: 'off', 'bridged' (only
@@ -431,6 +442,12 @@ class BridgingWindowSolver:
             ext_obs = ext_obs | use_short
         limited = np.zeros_like(done)  # fills the excursion limit applies to (see excursion_sources)
         travelling = None  # the body's net speed reaches travel_speed_mps (computed once, when asked)
+        if PRIOR_FIRST_WHILE_TRAVELLING and "pca" in srcs and "prior" in srcs and srcs.index("pca") < srcs.index("prior") \
+                and self.prior_ok(J, skeleton):
+            travelling = self._travelling(ext, ext_obs, rate_hz)
+            if travelling:  # the gait is the prior's to fill, not PCA's (module doc)
+                srcs = tuple(s for s in srcs if s != "prior")
+                srcs = srcs[:srcs.index("pca")] + ("prior",) + srcs[srcs.index("pca"):]
         for src in srcs:
             left = todo & ~done
             if not left.any():
