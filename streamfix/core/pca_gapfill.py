@@ -80,11 +80,10 @@ Choices the paper leaves open, made here and documented:
 * The printed Eq. (3) and Eq. (16) have typos (non-conforming ``U^T``; ``W`` missing in
   the second factor); the code uses the normal equations of Eq. (2) and Eq. (14).
 
-Measured on CMU 85_02 / 135_02 (5 gaps of 100 frames, MAE): local templates 4.6 /
-4.9 mm, the paper's whole-frame template 52 / 12 mm, the Eq. (8) layout trained on
-the other take 220 / 138 mm (temporal only; worse than cubic spline), linear
-interpolation 229 / 111 mm. Eq. (8) is kept as derived (``layout="pieces"``), not
-as the default.
+Why local templates are the default: on the CMU marker takes (100-frame gaps) they filled
+closer than the paper's whole-frame template, and the Eq. (8) layout (temporal only) did
+no better than cubic spline when this was chosen; Eq. (8) is kept as derived
+(``layout="pieces"``). ``benchmarks/bench_pca.py`` measures the default's fills.
 
 All functions are pure: arrays in, arrays out. Positions ``(T, J, 3)`` metres, NaN =
 missing, observed masks ``(T, J)`` bool. Filled values never replace observed ones.

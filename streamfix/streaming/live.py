@@ -27,12 +27,11 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
    CV on Kinect, but a wrong parent drags its subtree: on CMU 131_01 with 20 %
    corruption the live jitter cut drops from ~6x to ~3x).
 
-Measured (``OMP_NUM_THREADS=1``): on CMU 131_01 at 30 Hz with 10 / 20 % of entries
-corrupted by U(+-25 cm), live jitter 8.0x / 6.2x lower than the input's and live AJE
-18 / 29 mm (input 36 / 69 mm); on the five real Kinect v2 recordings jitter roughly
-halved. With numba the default chain (this gate, One Euro, the projection without
-propagation) runs as one compiled call per body-frame (:func:`streamfix.core.kernels.live_step`,
-the same values); its cost is in ``benchmarks/results/streaming.json``.
+``tests/test_streaming_ring_live.py`` holds the live output's jitter against the input's on
+CMU 131_01 with entries corrupted by U(+-25 cm). With numba the default chain (this gate,
+One Euro, the projection without propagation) runs as one compiled call per body-frame
+(:func:`streamfix.core.kernels.live_step`, the same values); its cost is in
+``benchmarks/results/streaming.json``.
 
 A joint missing in the input is predicted (``r_t``; held when no velocity is known)
 and flagged recovered. Units: metres, seconds.
