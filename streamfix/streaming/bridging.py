@@ -104,6 +104,16 @@ the person really holds still while the other one moves, which looks the same: i
 replaced by the fill as well (the sensor protocol's ``flagged`` kind scores that cost;
 ``benchmarks/results/sensor.md`` has the figures).
 
+The fills of released samples are not held by the excursion limit (``limit_released=False``).
+Its baseline is the limb's last sample before the run, relative to the joint it hangs from,
+which is the very pose the sensor froze in: with no far end in the window (``serve``'s 0.5 s
+lookahead) the limit put the fill back onto the guess just rejected, and a frozen arm kept
+most of its error in ``serve`` while ``clean`` (which sees the run's far end) replaced it.
+The price is the hazard above: a still arm that was right, on a walking body, now swings
+with the fill. The two cannot be told apart from the samples (the same input, two truths);
+``tests/test_frozen_limbs.py`` measures both on one walking take, and the sensor protocol's
+``freeze`` and ``mix`` kinds the gain.
+
 Dislocated hands and feet released (``release_dislocated``, on by default)
 -------------------------------------------------------------------------
 A hand, hand tip, thumb or foot whose bone to its parent is off the body's length by
@@ -302,6 +312,8 @@ class BridgingWindowSolver:
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
     :data:`HISTORY_S`). ``release_frozen`` / ``release_dislocated`` / ``release_jumps`` /
     ``verify_inferred`` / ``foot_support`` / ``undo_swaps``: the real-sensor stages in the module doc.
+    ``limit_released``: the excursion limit also holds the fills of released frozen samples
+    near the frozen pose (off: see "Frozen inferred limbs released" in the module doc).
     """
 
     wants_history = True
@@ -328,6 +340,7 @@ class BridgingWindowSolver:
         release_frozen: bool = True,
         release_dislocated: bool = True,
         release_jumps: bool = True,
+        limit_released: bool = False,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -345,6 +358,7 @@ class BridgingWindowSolver:
         self.release_frozen = bool(release_frozen)
         self.release_dislocated = bool(release_dislocated)
         self.release_jumps = bool(release_jumps)
+        self.limit_released = bool(limit_released)
         self._limb_joints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # limb joints, mirrors
         if prior_method not in ("latent", "encode"):
             raise ValueError(f"prior_method must be 'latent' or 'encode', got {prior_method!r}")
@@ -384,13 +398,14 @@ class BridgingWindowSolver:
     def bridge(
         self, positions: np.ndarray, observed: np.ndarray, rate_hz: float, history: np.ndarray | None = None,
         skeleton: str | None = None, bones: np.ndarray | None = None, sources: tuple[str, ...] | None = None,
-        excursion_gain: float | None | str = "default",
+        excursion_gain: float | None | str = "default", unlimited: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, dict]:
         """Fill the long-missing samples of one window; returns (positions, bridged mask, counts by source).
 
         ``bones`` ``(B, 2)`` (parent, child): the excursion limit works relative to each
         limb's anchor when given, in world coordinates when not. ``sources``,
-        ``excursion_gain``: in place of the solver's own.
+        ``excursion_gain``: in place of the solver's own. ``unlimited`` ``(T, J)`` bool:
+        samples whose fills the excursion limit leaves alone (released frozen samples).
         """
         gain = self.excursion_gain if excursion_gain == "default" else excursion_gain
         x = np.asarray(positions, dtype=np.float64)
@@ -490,6 +505,8 @@ class BridgingWindowSolver:
                         limited |= use & limb_joint_mask(J, self.prior_limited_limbs, skeleton)[None, :]
             if use.any():
                 counts[src] = int(use.sum())
+        if unlimited is not None:
+            limited &= ~np.asarray(unlimited, dtype=bool)
         if gain is not None and limited.any():
             # keep each model fill within the joint's recent range of motion of its
             # continuity baseline (hold from the last observed sample; linear once the
@@ -643,7 +660,7 @@ class BridgingWindowSolver:
                 # the engine's blend drops what it left there, as for a frozen release
                 dropped = jumped if released is None else (released | jumped)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
-                          None if skeleton is None else skeleton.name)
+                          None if skeleton is None else skeleton.name, released)
         if replaced is None:
             return res
         res = _with_recovered(res, replaced)
@@ -701,7 +718,8 @@ class BridgingWindowSolver:
         conf = np.where(w > 0, (1.0 - w) * conf + w * self.fill_confidence, conf)
         return x, conf, w > 0.5
 
-    def _solve(self, x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history, skeleton_name=None):
+    def _solve(self, x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history, skeleton_name=None,
+               released=None):
         """Bridge long gaps, then the base solver (``__call__`` after the real-sensor stages)."""
         kwargs: dict[str, Any] = {"state": state, "init": init}
         if config is not None:
@@ -712,7 +730,8 @@ class BridgingWindowSolver:
             if self.prior_init == "always" and self.prior_ok(x.shape[1], skeleton_name):
                 kwargs["state"], kwargs["init"] = self.prior_start(x, obs, rate_hz, state, init)
             return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
-        filled, bridged, counts = self.bridge(x, obs, rate_hz, history, skeleton_name, bones)
+        free = None if self.limit_released else released
+        filled, bridged, counts = self.bridge(x, obs, rate_hz, history, skeleton_name, bones, unlimited=free)
         if not bridged.any():
             return self.base(x, conf, bones, bone_lengths, rate_hz, **kwargs)
         conf_in = np.where(bridged, self.fill_confidence, conf)
