@@ -457,12 +457,12 @@ class BridgingWindowSolver:
             ext_obs = ext_obs | use_short
         limited = np.zeros_like(done)  # fills the excursion limit applies to (see excursion_sources)
         travelling = None  # the body's net speed reaches travel_speed_mps (computed once, when asked)
-        if PRIOR_FIRST_WHILE_TRAVELLING and "pca" in srcs and "prior" in srcs and srcs.index("pca") < srcs.index("prior") \
-                and self.prior_ok(J, skeleton):
+        pca_then_prior = "pca" in srcs and "prior" in srcs[srcs.index("pca") + 1:]
+        if PRIOR_FIRST_WHILE_TRAVELLING and pca_then_prior and h is not None and self.prior_ok(J, skeleton):
             travelling = self._travelling(ext, ext_obs, rate_hz)
-            if travelling:  # the gait is the prior's to fill, not PCA's (module doc)
-                srcs = tuple(s for s in srcs if s != "prior")
-                srcs = srcs[:srcs.index("pca")] + ("prior",) + srcs[srcs.index("pca"):]
+            if travelling:  # the gait is the prior's to fill, not PCA's (module doc): prior just before pca
+                i = srcs.index("pca")
+                srcs = srcs[:i] + ("prior",) + tuple(s for s in srcs[i:] if s != "prior")
         for src in srcs:
             left = todo & ~done
             if not left.any():
