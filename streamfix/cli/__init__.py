@@ -20,6 +20,7 @@ COMMANDS = {
     "record": "record",
     "tap": "tap",
     "train-prior": "train_prior",
+    "train-bias": "train_bias",
     "view": "view",      # streamfix/viewer (browser viewer)
     "report": "report",  # streamfix/report (plotted reports)
     "keys": "keys",

@@ -44,13 +44,14 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import convolve1d
-from scipy.signal import butter, savgol_coeffs, sosfiltfilt
+from scipy.signal import butter, lfilter, savgol_coeffs, sosfiltfilt
 
 from . import kernels
 from .interpolate import interpolate_linear, observed_mask
 from .robust_stats import nanmedian
 
 __all__ = [
+    "exponential_smoothing",
     "OneEuroFilter",
     "HoltParams",
     "HoltFilter",
@@ -516,6 +517,23 @@ def butterworth(
         return x
     padlen = min(3 * (2 * len(sos) + 1), n - 1)
     return _along_time(x, lambda c: sosfiltfilt(sos, c, axis=0, padlen=padlen))
+
+
+def exponential_smoothing(x: np.ndarray, alpha: float, previous: np.ndarray | None = None) -> np.ndarray:
+    """Causal one-pole low-pass along axis 0: ``s(t) = s(t-1) + alpha (x(t) - s(t-1))``.
+
+    ``previous``: ``s`` of the frame before ``x[0]`` (a stream continuing across calls);
+    None starts at ``x[0]``. Splitting ``x`` into consecutive pieces, each given the last
+    output of the one before, gives the same values as one call. ``alpha`` in (0, 1]: 1 =
+    no smoothing; ``1 - exp(-dt / tau)`` for a time constant ``tau`` at frame period ``dt``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if not 0.0 < alpha <= 1.0:
+        raise ValueError(f"alpha must be in (0, 1], got {alpha}")
+    if len(x) == 0 or alpha == 1.0:
+        return x.copy()
+    start = x[0] if previous is None else np.asarray(previous, dtype=np.float64)
+    return lfilter([alpha], [1.0, alpha - 1.0], x, axis=0, zi=((1.0 - alpha) * start)[None])[0]
 
 
 def binomial_taps(half_width: int) -> np.ndarray:

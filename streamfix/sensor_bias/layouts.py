@@ -1,0 +1,46 @@
+"""What a pose-bias model of each joint layout looks at and corrects (see :mod:`streamfix.core.pose_bias`).
+
+A layout is here only where paired recordings (the sensor with optical motion capture at
+once) exist to train it: today Kinect v1 in UI-PRMD's layout (``../shared/data/paired``).
+The corrected joints are those the optical reference has; the others follow a neighbour.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["BiasLayout", "BIAS_LAYOUTS"]
+
+
+@dataclass(frozen=True)
+class BiasLayout:
+    """Joint names of one layout: the body frame, the segment groups, the corrected joints, who follows whom."""
+
+    skeleton: str
+    frame_joints: tuple[str, str, str, str]  # left shoulder, right shoulder, pelvis, neck
+    groups: tuple[tuple[tuple[str, str], ...], ...]
+    corrected: tuple[str, ...]
+    follow: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+def _sides(*stems: tuple[str, str]) -> tuple[tuple[str, str], ...]:
+    return tuple((f"{s}{a}", f"{s}{b}") for s in ("L", "R") for a, b in stems)
+
+
+_KINECT_V1_UIPRMD = BiasLayout(
+    skeleton="kinect_v1_uiprmd",
+    frame_joints=("LShoulder", "RShoulder", "Waist", "Neck"),
+    groups=(
+        # arms and head: the upper body's joints depend on how the arms are raised and bent
+        _sides(("Shoulder", "Elbow"), ("Elbow", "Wrist")) + (("Neck", "HeadTip"),),
+        # legs and pelvis: the lower body's on how the legs fold
+        _sides(("Hip", "Knee"), ("Knee", "Ankle"), ("Ankle", "Foot")) + (("LHip", "RHip"),),
+        (("Waist", "Neck"),),  # the trunk's lean against the shoulder line
+    ),
+    corrected=("Waist", "Neck", "HeadTip", "LShoulder", "LElbow", "LWrist", "RShoulder", "RElbow", "RWrist",
+               "LHip", "LKnee", "LAnkle", "LFoot", "RHip", "RKnee", "RAnkle", "RFoot"),
+    follow={"Spine": {"Waist": 0.5, "Neck": 0.5}, "Chest": {"Neck": 1.0}, "Head": {"HeadTip": 1.0},
+            "LCollar": {"Neck": 0.5, "LShoulder": 0.5}, "RCollar": {"Neck": 0.5, "RShoulder": 0.5}},
+)
+
+#: Layouts with a pose-bias model definition, by skeleton name.
+BIAS_LAYOUTS: dict[str, BiasLayout] = {l.skeleton: l for l in (_KINECT_V1_UIPRMD,)}
