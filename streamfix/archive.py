@@ -53,7 +53,8 @@ class ArchiveOptions:
     file's rate). schedule: ``file`` or ``serve`` (:func:`streamfix.streaming.config.schedule_config`).
     gapfill: run the gap filler on marker sets without bones. training: reference takes for it.
     keep_filled: keep frames synthesised for sensor drops. prior: a trained prior's card
-    or directory (None = the shipped one).
+    or directory (None = the shipped one). sensor_bias: ``auto``, ``off`` or a pose-bias
+    model file (:attr:`streamfix.streaming.config.EngineConfig.sensor_bias`).
     """
 
     window: int | None = None
@@ -65,6 +66,7 @@ class ArchiveOptions:
     training: tuple[str, ...] | None = None
     keep_filled: bool = False
     prior: str | None = None
+    sensor_bias: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -153,7 +155,8 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
             _PRIOR_SET[0] = options.prior
         motion = read_motion(input_path)
         config = schedule_config(options.schedule, motion.rate_hz, window=options.window, hop=options.hop,
-                                 lookahead=options.lookahead, lookahead_s=options.lookahead_s)
+                                 lookahead=options.lookahead, lookahead_s=options.lookahead_s,
+                                 sensor_bias=options.sensor_bias)
         result = clean_recording(motion, config, gapfill=options.gapfill,
                                  training=list(options.training) if options.training else None,
                                  keep_filled=options.keep_filled)

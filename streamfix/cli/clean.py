@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .options import add_sensor_bias_argument
+
 HELP = "Clean a recorded motion file offline (the engine of serve's clean output, on a schedule for files)."
 
 
@@ -61,6 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prior", default=None, metavar="PATH",
                         help="learned prior to use: a model card .json or a directory holding one, as written by "
                              "`streamfix train-prior --out DIR` (default: the shipped model)")
+    add_sensor_bias_argument(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
     parser.add_argument("--jobs", type=int, default=1, metavar="N",
                         help="IN a folder or glob: clean N files at once in worker processes (default 1)")
@@ -129,9 +132,9 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 2
-    from .options import apply_prior_option
+    from .options import apply_prior_option, check_sensor_bias_option
 
-    if not apply_prior_option("clean", args.prior):
+    if not apply_prior_option("clean", args.prior) or not check_sensor_bias_option("clean", args.sensor_bias):
         return 2
 
     try:
@@ -158,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
             solver_config = PipelineConfig(projection_tolerance=0.0)
         seconds, frames = _lookahead(args)
         config = schedule_config(args.schedule, motion.rate_hz, window=args.window, hop=args.hop, lookahead=frames,
-                                 lookahead_s=seconds, bone_lengths=lengths, solver_config=solver_config)
+                                 lookahead_s=seconds, bone_lengths=lengths, solver_config=solver_config,
+                                 sensor_bias=args.sensor_bias)
     except ValueError as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 2
@@ -243,9 +247,11 @@ def _run_archive(args: argparse.Namespace) -> int:
         out_dir.mkdir(parents=True, exist_ok=True)
     except (OSError, ValueError) as exc:
         return fail(str(exc))
-    from .options import apply_prior_option
+    from .options import apply_prior_option, check_sensor_bias_option
 
     if not apply_prior_option("clean", args.prior):  # checked here once, before any worker loads it
+        return 2
+    if not check_sensor_bias_option("clean", args.sensor_bias):
         return 2
     try:
         seconds, frames = _lookahead(args)
@@ -256,6 +262,7 @@ def _run_archive(args: argparse.Namespace) -> int:
         gapfill=not args.no_gapfill,
         training=tuple(str(Path(t).resolve()) for t in args.training) if args.training else None,
         keep_filled=args.keep_filled, prior=str(Path(args.prior).resolve()) if args.prior else None,
+        sensor_bias=args.sensor_bias if args.sensor_bias in ("auto", "off", "none") else str(Path(args.sensor_bias).resolve()),
     )
     t0 = time.monotonic()
 

@@ -19,7 +19,7 @@ import argparse
 import math
 import sys
 
-__all__ = ["apply_prior_option", "ListOption", "add_list_argument", "add_speed_argument", "check_speed"]
+__all__ = ["apply_prior_option", "add_sensor_bias_argument", "check_sensor_bias_option", "ListOption", "add_list_argument", "add_speed_argument", "check_speed"]
 
 
 def apply_prior_option(command: str, path: str | None) -> bool:
@@ -33,6 +33,28 @@ def apply_prior_option(command: str, path: str | None) -> bool:
         set_default_prior(path)
     except (OSError, ValueError, KeyError) as exc:
         print(f"streamfix {command}: --prior {path}: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
+def add_sensor_bias_argument(parser: argparse.ArgumentParser) -> None:
+    """``--sensor-bias auto|off|PATH``: the learned pose-dependent sensor bias removed from the clean output."""
+    parser.add_argument("--sensor-bias", default="auto", metavar="auto|off|PATH",
+                        help="remove the learned pose-dependent bias of the sensor's joints from the clean output: "
+                             "'auto' (default: the model shipped for the skeleton, today Kinect v1 in UI-PRMD's "
+                             "layout; none for other skeletons), 'off', or a model file from `streamfix train-bias`")
+
+
+def check_sensor_bias_option(command: str, value: str) -> bool:
+    """``--sensor-bias``: False (after one line on stderr) when a PATH given is not a model file."""
+    if value in ("auto", "off", "none"):
+        return True
+    from ..io.pose_bias_model import load_pose_bias
+
+    try:
+        load_pose_bias(value)
+    except (OSError, ValueError) as exc:
+        print(f"streamfix {command}: --sensor-bias {value}: {exc}", file=sys.stderr)
         return False
     return True
 

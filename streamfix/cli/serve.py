@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--metrics-host", default="127.0.0.1", help="address for the metrics HTTP server (default %(default)s)")
     p.add_argument("--status-interval", type=float, default=5.0, metavar="S",
                    help="seconds between one-line status reports on stderr (0 = only at exit; default %(default)s)")
-    from .options import add_speed_argument
+    from .options import add_sensor_bias_argument, add_speed_argument
 
     add_speed_argument(p, "replayed recording")
     p.add_argument("--loop", action="store_true", help="replay: loop the recording instead of exiting at its end")
@@ -75,6 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prior", default=None, metavar="PATH",
                    help="learned prior to use: a model card .json or a directory holding one, as written by "
                         "`streamfix train-prior --out DIR` (default: the shipped model)")
+    add_sensor_bias_argument(p)
     p.add_argument("--log-level", default="INFO", choices=("DEBUG", "INFO", "WARNING", "ERROR"))
     p.add_argument("--view", nargs="?", type=int, const=8765, default=None, metavar="PORT",
                    help="also serve the browser viewer (streamfix view) on http://127.0.0.1:PORT (default 8765)")
@@ -166,9 +167,9 @@ def run(args: argparse.Namespace) -> int:
         level=getattr(logging, args.log_level), stream=sys.stderr, format="streamfix serve: %(message)s"
     )
     log = logging.getLogger("streamfix.service")
-    from .options import apply_prior_option, check_speed
+    from .options import apply_prior_option, check_sensor_bias_option, check_speed
 
-    if not apply_prior_option("serve", args.prior):
+    if not apply_prior_option("serve", args.prior) or not check_sensor_bias_option("serve", args.sensor_bias):
         return 2
 
     import zmq
@@ -195,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
         options = EngineOptions(
             window=args.window, hop=args.hop, lookahead=seconds, lookahead_frames=frames, threaded=not args.sync,
-            solver_process=args.solver_process,
+            solver_process=args.solver_process, sensor_bias=args.sensor_bias,
         )
     except ValueError as exc:
         print(f"streamfix serve: bad engine settings: {exc}", file=sys.stderr)

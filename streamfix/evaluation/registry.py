@@ -30,6 +30,7 @@ method that needs one builds a nameless layout from ``bones`` when it is not giv
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from pathlib import Path
 from typing import Callable
@@ -95,17 +96,18 @@ def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serv
 
 
 def _engine_method(name: str) -> Method:
-    def run(x, conf, bones, rate, skeleton=None):
+    def run(x, conf, bones, rate, skeleton=None, sensor_bias="auto"):
         skel = layout_for(bones, x.shape[1], skeleton)
         times = np.arange(x.shape[0], dtype=np.float64) / float(rate)
         motion = Motion(np.asarray(x, dtype=np.float64), np.asarray(conf, dtype=np.float64), times, float(rate), skel)
+        cfg = dataclasses.replace(engine_config(name, rate), sensor_bias=sensor_bias)
         if ENGINE_SCHEDULES[name] == "file":  # exactly what `streamfix clean` writes (the gap filler for markers)
             from ..cleaning import clean_recording
 
-            return clean_recording(motion, engine_config(name, rate)).motion.positions
+            return clean_recording(motion, cfg).motion.positions
         from ..streaming.offline import clean_motion
 
-        out, _ = clean_motion(motion, engine_config(name, rate))
+        out, _ = clean_motion(motion, cfg)
         return out.positions
 
     run.__name__ = name
@@ -217,15 +219,24 @@ def run_method(
     bones: np.ndarray,
     rate_hz: float,
     skeleton: Skeleton | None = None,
+    sensor_bias=None,
 ) -> np.ndarray:
-    """Run method ``name`` (one of :data:`ALL_METHODS`) on a corrupted take."""
+    """Run method ``name`` (one of :data:`ALL_METHODS`) on a corrupted take.
+
+    ``sensor_bias`` (engine methods only): the pose-bias model setting
+    (:mod:`streamfix.sensor_bias.shipped`; None = the engine's default, ``"auto"``); a
+    leave-one-subject-out benchmark passes each subject's fold model here.
+    """
     try:
         fn = METHODS[name]
     except KeyError:
         raise ValueError(f"unknown method {name!r}; expected one of: {', '.join(ALL_METHODS)}") from None
     x = np.asarray(positions, dtype=np.float64)
     conf = np.where(np.isfinite(x).all(axis=2), np.asarray(confidence, dtype=np.float64), 0.0)
-    out = fn(np.where(conf[..., None] > 0, x, np.nan), conf, bones, float(rate_hz), skeleton=skeleton)
+    extra = {} if sensor_bias is None else {"sensor_bias": sensor_bias}
+    if extra and name not in ENGINE_SCHEDULES:
+        raise ValueError(f"method {name!r} has no sensor-bias setting (only {', '.join(ENGINE_SCHEDULES)})")
+    out = fn(np.where(conf[..., None] > 0, x, np.nan), conf, bones, float(rate_hz), skeleton=skeleton, **extra)
     return np.asarray(out, dtype=np.float64)
 
 

@@ -37,6 +37,7 @@ class EngineOptions:
     lookahead_frames: int | None = None  # or frames (wins if given)
     threaded: bool = True           # solve windows off the input thread
     solver_process: bool = False    # ... in a child process per engine (threaded only; solver_process.py)
+    sensor_bias: str = "auto"       # learned sensor bias removed from clean: auto | off | a model file
 
 
 class PassthroughEngine:
@@ -103,6 +104,8 @@ def _engine_config(rate_hz: float, options: EngineOptions):
         kwargs["lookahead_s"] = float(options.lookahead)
     if "threaded" in fields:
         kwargs["threaded"] = bool(options.threaded)
+    if options.sensor_bias != "auto":
+        kwargs["sensor_bias"] = options.sensor_bias
     if options.solver_process and not options.threaded:
         raise ValueError("a solver process serves the engine's worker thread: it needs threaded mode (not --sync)")
     unknown = [k for k in kwargs if fields and k not in fields]

@@ -144,6 +144,7 @@ class Body:
         # the body's recent clean output for history-trained solvers (ring, oldest first on read)
         self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
         self.hist_n = 0
+        self.bias_last: np.ndarray | None = None  # (J, 3) m: the sensor-bias shift of the last emitted frame
 
     def reuse_rows(self, rows) -> None:
         """Clear the output accumulators of timeline rows ``rows`` (an index or an array of

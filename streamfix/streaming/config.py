@@ -101,6 +101,11 @@ class EngineConfig:
     fill_smooth_s: the same for joint-frames that are the model's fill rather than a
     measurement (:data:`streamfix.streaming.blending.FILL_DISTANCE_M`); at least
     ``output_smooth_s`` (equal = no wider smoothing; none when ``output_smooth_s`` is 0).
+    sensor_bias: the learned pose-dependent sensor bias removed from the clean output
+    (:mod:`streamfix.core.pose_bias`): ``"auto"`` (the model shipped for the stream's
+    skeleton, if any), None / ``"off"``, a model file's path or a model
+    (:func:`streamfix.sensor_bias.resolve_sensor_bias`). Applied to what is emitted only:
+    the bone lengths, history and windows the engine keeps are the uncorrected ones.
     """
 
     window: int | None = None
@@ -129,6 +134,7 @@ class EngineConfig:
     startup_hop: int | None = None
     output_smooth_s: float = OUTPUT_SMOOTH_S
     fill_smooth_s: float = FILL_SMOOTH_S
+    sensor_bias: Any = field(default="auto", compare=False)
 
     @classmethod
     def for_files(cls, rate_hz: float = 30.0, **settings: Any) -> "EngineConfig":

@@ -144,9 +144,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..core.filters import twiced_binomial_taps
+from ..core.pose_bias import correction_gain
 from ..frames import BodyFrame, SkeletonFrame, check_frame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
+from ..sensor_bias.shipped import resolve_sensor_bias
 from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end
 from .bone_lengths import LengthSources, length_sources
 from .bodies import (  # the constants are re-exported: the engine's documented settings
@@ -240,6 +242,8 @@ class StreamEngine:
             self.cfg.solver_config, self.cfg.lookahead + self.cfg.hop + crossfade_frames(self.cfg.handover_s, self.cfg.rate_hz),
             self.solver)
         self._mirror_bones = mirror_bones(skeleton)
+        self._pose_bias = resolve_sensor_bias(self.cfg.sensor_bias, skeleton)
+        self._bias_alpha = correction_gain(self.cfg.rate_hz)
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
         if self.cfg.bone_lengths is not None and len(self.cfg.bone_lengths) != skeleton.n_bones:
@@ -859,7 +863,8 @@ class StreamEngine:
             return
         recovered, fallback = finalise_frames(
             st, body, end, self.bones, self.cfg.hop, learn_lengths=self._learn_lengths,
-            live_output=self.cfg.live_output, history=self._history,
+            live_output=self.cfg.live_output, history=self._history, pose_bias=self._pose_bias,
+            bias_alpha=self._bias_alpha,
         )
         self.counters["joints_recovered"] += recovered
         if fallback:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.pose_bias import PoseBiasModel, remove_pose_bias
 from ..frames import BodyFrame
 from .bodies import RECOVERED_CONFIDENCE, Body, StreamState
 from .bone_lengths import sample_clean_bones
@@ -54,6 +55,8 @@ def finalise_frames(
     learn_lengths: bool,
     live_output: bool,
     history: bool,
+    pose_bias: PoseBiasModel | None = None,
+    bias_alpha: float = 1.0,
 ) -> tuple[int, int]:
     """Finalise the body's frames ``body.final_upto .. end - 1`` into ``st.pending``.
 
@@ -64,7 +67,10 @@ def finalise_frames(
     recovered, 0 without a position. ``learn_lengths``: file each output frame into the
     body's clean bone-length memory (:func:`~streamfix.streaming.bone_lengths.sample_clean_bones`;
     ``live_output``: and hand new lengths to the live path); ``history``: keep the output's
-    observed samples in the body's history (solvers that train on it). Advances
+    observed samples in the body's history (solvers that train on it). ``pose_bias``: the
+    learned sensor bias removed from the emitted values only
+    (:func:`~streamfix.core.pose_bias.remove_pose_bias`, ``bias_alpha`` its smoothing gain,
+    its state kept in ``body.bias_last``). Advances
     ``body.final_upto`` to ``end``; returns ``(joints recovered, joints given the live value)``.
     """
     n0 = body.final_upto
@@ -101,13 +107,16 @@ def finalise_frames(
         finite = np.isfinite(pos).all(axis=2)
         if not finite.all():
             conf = np.where(finite, conf, 0.0)
+        emitted = pos
+        if pose_bias is not None:
+            emitted, body.bias_last = remove_pose_bias(pos, bones, pose_bias, bias_alpha, body.bias_last)
         bid = body.body_id
         g0 = body.g0
         for i, n in enumerate(n_p.tolist()):
             pend = st.pending.get(g0 + n)
             if pend is None:
                 continue
-            pend.slots[bid] = BodyFrame(bid, pos[i], conf[i], rec[i])
+            pend.slots[bid] = BodyFrame(bid, emitted[i], conf[i], rec[i])
             pend.missing -= 1
             recovered += int(rec[i].sum())
             if learn_lengths:
