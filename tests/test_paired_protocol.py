@@ -34,6 +34,10 @@ def test_cli_json_on_a_few_repetitions(capsys):
             assert r["seam_frames"] > 0 and isinstance(r["seam_ratio"], float) and math.isfinite(r["seam_ratio"]), r
         assert r["debiased_mean_m"] <= r["debiased_p95_m"] and r["coverage"] == 1.0
     assert by[("uiprmd", "input", "all")]["n_takes"] == 2 and by[("keraal", "input", "all")]["n_takes"] == 1
+    # the shipped sensor-bias model saw UI-PRMD's people: each is scored by a model fitted without them
+    assert by[("uiprmd", "streamfix", "all")]["sensor_bias"] == "held-out person"
+    assert by[("keraal", "streamfix", "all")]["sensor_bias"] == "shipped"  # (none for Kinect v2)
+    assert "sensor_bias" not in by[("uiprmd", "input", "all")]
     for d in ("uiprmd", "keraal"):
         raw = by[(d, "input", "all")]
         # a raw sensor is rougher than the mocap, aligned in time, centimetres off after debiasing
@@ -52,6 +56,18 @@ def test_cli_table_and_directory_argument(shared_data, capsys):
     out = capsys.readouterr().out
     assert code == 0
     assert "keraal (1 takes" in out and "region lower" in out and "uiprmd" not in out
+
+
+def test_no_take_is_scored_by_a_bias_model_that_saw_its_person(shared_data):
+    from streamfix.evaluation.paired import held_out_bias_models
+    from streamfix.io.paired import find_takes
+
+    refs = [r for r in find_takes(shared_data / "paired", limit=12) if r.dataset == "uiprmd"]
+    models = held_out_bias_models(refs, workers=2)
+    assert set(models) == {r.key for r in refs}
+    for r in refs:
+        subject = r.key.split("_")[2]
+        assert subject not in models[r.key].training_subjects and len(models[r.key].training_subjects) == 5
 
 
 def test_unknown_methods_are_skipped_with_a_warning():

@@ -43,6 +43,13 @@ for every other method), each against the same joint's other frames within one h
 
 Methods come from :mod:`streamfix.evaluation.registry`; names it does not know are
 skipped with a warning (:data:`DEFAULT_METHODS` names the baselines users pick).
+
+Held-out people: the engine methods remove a learned pose-dependent sensor bias
+(:mod:`streamfix.sensor_bias`) whose shipped model was fitted on paired recordings of
+some people. A take of one of those people is scored with a model fitted on every other
+person's trustworthy takes of the same source instead (:func:`held_out_bias_models`), so no
+take is scored by a model that saw its person; takes of anyone else use the shipped model.
+The records say which (``sensor_bias``).
 """
 from __future__ import annotations
 
@@ -61,7 +68,7 @@ from ..io.paired import PairedTake, TakeRef, default_paired_dir, find_takes, loa
 from . import registry
 from .registry import handover_frames
 
-__all__ = ["run_paired", "score_take", "aggregate", "body_region", "handover_frames", "print_paired_table",
+__all__ = ["run_paired", "score_take", "held_out_bias_models", "aggregate", "body_region", "handover_frames", "print_paired_table",
            "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
 
 DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix",
@@ -78,10 +85,13 @@ def body_region(joint_name: str) -> str:
     return "lower" if any(w in name for w in _LOWER_WORDS) else "upper"
 
 
-def _run_method(name: str, take: PairedTake) -> np.ndarray:
-    """``registry.run_method`` on the take's sensor skeleton (passing ``skeleton=`` where accepted)."""
+def _run_method(name: str, take: PairedTake, sensor_bias=None) -> np.ndarray:
+    """``registry.run_method`` on the take's sensor skeleton (passing ``skeleton=`` where accepted;
+    ``sensor_bias`` to the engine methods, None = their default)."""
     m = take.sensor
     kwargs = {"skeleton": m.skeleton} if _takes_skeleton() else {}
+    if sensor_bias is not None and name in registry.ENGINE_SCHEDULES:
+        kwargs["sensor_bias"] = sensor_bias
     return registry.run_method(name, m.positions, m.confidence, m.skeleton.bone_array, m.rate_hz, **kwargs)
 
 
@@ -97,8 +107,9 @@ def _region_joints(take: PairedTake) -> dict[str, np.ndarray]:
     return {"all": everything, "upper": ~lower, "lower": lower}
 
 
-def score_take(take: PairedTake, methods: list[str]) -> dict:
-    """Partial sums of every measure for one take: ``{(method, region): {...}}`` (see :func:`aggregate`)."""
+def score_take(take: PairedTake, methods: list[str], sensor_bias=None) -> dict:
+    """Partial sums of every measure for one take: ``{(method, region): {...}}`` (see :func:`aggregate`);
+    ``sensor_bias``: the engine methods' pose-bias model (None = their default)."""
     ref = take.reference
     T = ref.shape[0]
     has_ref = np.isfinite(ref).all(axis=2)  # (T, J)
@@ -111,7 +122,7 @@ def score_take(take: PairedTake, methods: list[str]) -> dict:
     out: dict = {}
     for name in methods:
         t0 = time.perf_counter()
-        y = _run_method(name, take)
+        y = _run_method(name, take, sensor_bias)
         dt = time.perf_counter() - t0
         err = np.linalg.norm(y - ref, axis=2)
         deb = np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)
@@ -205,9 +216,46 @@ def aggregate(partials: list[tuple[str, dict]]) -> list[dict]:
     return records
 
 
-def _score_ref(args: tuple[TakeRef, list[str]]) -> tuple[str, dict]:
-    ref, methods = args
-    return ref.dataset, score_take(load_take(ref), methods)
+def _score_ref(args: tuple) -> tuple[str, dict]:
+    ref, methods, sensor_bias = args
+    return ref.dataset, score_take(load_take(ref), methods, sensor_bias)
+
+
+def held_out_bias_models(refs: list[TakeRef], *, workers: int = 1) -> dict[str, object]:
+    """``{take key: pose-bias model}`` for the takes whose person the shipped model was fitted on.
+
+    Each such person gets a model fitted on the engine's uncorrected output of every other
+    person's trustworthy takes in the same source files (all of them, whatever ``limit``
+    chose to score). Empty when no take's skeleton has a shipped model or none of their
+    people trained it. ``ValueError`` when a person cannot be held out (no other person's takes).
+    """
+    from ..sensor_bias.shipped import shipped_model
+    from ..sensor_bias.train import engine_outputs, subject_folds
+
+    by_source: dict[str, list[TakeRef]] = {}
+    for r in refs:
+        if r.dataset == "uiprmd":
+            by_source.setdefault(r.source, []).append(r)
+    models: dict[str, object] = {}
+    for source, scored in by_source.items():
+        takes = engine_outputs(find_takes(source, subset="trustworthy"), workers=workers)
+        shipped = shipped_model(takes[0].skeleton) if takes else None
+        if shipped is None:
+            continue
+        seen = set(shipped.training_subjects) & {t.subject for t in takes}
+        if not seen:
+            continue
+        folds = subject_folds(takes)
+        for r in scored:
+            subject = _uiprmd_subject(r.key)
+            if subject in seen:
+                models[r.key] = folds[subject]
+    return models
+
+
+def _uiprmd_subject(key: str) -> str:
+    """``s01`` of a UI-PRMD key ``cor_m01_s01_e08``."""
+    return next((p for p in key.split("_") if p.startswith("s") and p[1:].isdigit()), "")
 
 
 def known_methods(methods) -> list[str]:
@@ -244,7 +292,8 @@ def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, sub
     records: list[dict] = []
     for src in sources:
         refs = find_takes(src, subset=subset, limit=limit)
-        jobs = [(r, methods) for r in refs]
+        held_out = held_out_bias_models(refs, workers=workers) if set(methods) & set(registry.ENGINE_SCHEDULES) else {}
+        jobs = [(r, methods, held_out.get(r.key)) for r in refs]
         if workers > 1 and len(jobs) > 1:
             import multiprocessing
 
@@ -260,9 +309,12 @@ def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, sub
                 part.append(_score_ref(job))
                 if progress is not None:
                     progress(i + 1, len(jobs))
+        held_datasets = {r.dataset for r in refs if r.key in held_out}
         for rec in aggregate(part):
             rec["file"] = str(src)
             rec["subset"] = subset
+            if rec["method"] in registry.ENGINE_SCHEDULES:
+                rec["sensor_bias"] = "held-out person" if rec["dataset"] in held_datasets else "shipped"
             records.append(rec)
     return records
 
