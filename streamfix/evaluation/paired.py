@@ -48,8 +48,9 @@ Held-out people: the engine methods remove a learned pose-dependent sensor bias
 (:mod:`streamfix.sensor_bias`) whose shipped model was fitted on paired recordings of
 some people. A take of one of those people is scored with a model fitted on every other
 person's trustworthy takes of the same source instead (:func:`held_out_bias_models`), so no
-take is scored by a model that saw its person; takes of anyone else use the shipped model.
-The records say which (``sensor_bias``).
+take is scored by a model that saw its person; takes of anyone else get the engine's
+default (``auto``: the model shipped for the skeleton, if any). The records say which
+(``sensor_bias``).
 """
 from __future__ import annotations
 
@@ -314,7 +315,7 @@ def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, sub
             rec["file"] = str(src)
             rec["subset"] = subset
             if rec["method"] in registry.ENGINE_SCHEDULES:
-                rec["sensor_bias"] = "held-out person" if rec["dataset"] in held_datasets else "shipped"
+                rec["sensor_bias"] = "held-out person" if rec["dataset"] in held_datasets else "auto"
             records.append(rec)
     return records
 
@@ -337,8 +338,10 @@ def print_paired_table(records: list[dict], out=None) -> None:
             "seam")
     for (file, dataset, region), recs in groups.items():
         base = next((r for r in recs if r["method"] == "input"), None)
+        bias = sorted({r["sensor_bias"] for r in recs if r.get("sensor_bias")})
         print(f"\n{dataset} ({recs[0]['n_takes']} takes, {recs[0]['n_frames']} frames, {recs[0].get('subset', '')}), "
-              f"region {region}: {file}", file=out)
+              f"region {region}: {file}" + (f" (engine's sensor-bias model: {', '.join(bias)})" if bias else ""),
+              file=out)
         print(f"{'method':<16}" + "".join(f"{c:>12}" for c in cols), file=out)
         for r in recs:
             rel = [None, None]
