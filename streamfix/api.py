@@ -128,6 +128,7 @@ def clean(
     confidence: np.ndarray | None = None,
     mode: str = "offline",
     prior: str | Path | None = None,
+    sensor_bias: str | Path = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Clean ``(T, J, 3)`` joint positions (metres, NaN = missing) sampled at ``rate_hz`` (Hz).
 
@@ -148,6 +149,10 @@ def clean(
     prior:
         A learned prior (model card ``.json`` or its directory, as written by
         ``streamfix train-prior``) used for this call; None = the current default.
+    sensor_bias:
+        The learned pose-dependent sensor bias removed from the output (``--sensor-bias``
+        of ``clean`` / ``serve``): ``"auto"`` (the model shipped for the skeleton, if any),
+        ``"off"``, or a model file written by ``streamfix train-bias``.
 
     Returns
     -------
@@ -158,14 +163,18 @@ def clean(
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(repr(m) for m in MODES)}; got {mode!r}")
     motion = _motion(positions, rate_hz, _skeleton(skeleton), confidence)
+    from .streaming.config import schedule_config
+
+    bias = str(sensor_bias)
     with _prior(prior):
         if mode == "offline":
             from .cleaning import clean_recording
 
-            cleaned = clean_recording(motion).motion
+            cleaned = clean_recording(motion, schedule_config("file", motion.rate_hz, sensor_bias=bias)).motion
         else:
             from .streaming.offline import clean_motion
 
-            cleaned, _ = clean_motion(motion, topic="clean" if mode == "stream" else "live")
+            cleaned, _ = clean_motion(motion, schedule_config("serve", motion.rate_hz, sensor_bias=bias),
+                                      topic="clean" if mode == "stream" else "live")
     recovered = cleaned.recovered if cleaned.recovered is not None else np.zeros(cleaned.positions.shape[:2], bool)
     return cleaned.positions, recovered

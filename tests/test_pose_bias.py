@@ -219,3 +219,19 @@ def test_train_bias_and_clean_refuse_what_they_cannot_use(tmp_path):
     out = subprocess.run([sys.executable, "-m", "streamfix", "clean", "in.csv", str(tmp_path / "o.csv"),
                           "--sensor-bias", str(junk)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "--sensor-bias" in out.stderr and "junk.npz" in out.stderr
+
+
+def test_the_python_api_takes_the_same_setting(shared_data):
+    import streamfix
+    from streamfix.evaluation.registry import run_method
+    from streamfix.io.paired import find_takes, load_take
+
+    ref = [r for r in find_takes(shared_data / "paired", subset="trustworthy") if r.dataset == "uiprmd"][40]
+    m = load_take(ref).sensor
+    x = np.where(m.confidence[..., None] > 0, m.positions, np.nan)
+    off, _ = streamfix.clean(x, m.rate_hz, "kinect_v1_uiprmd", m.confidence, sensor_bias="off")
+    on, _ = streamfix.clean(x, m.rate_hz, "kinect_v1_uiprmd", m.confidence)
+    want = run_method("streamfix", m.positions, m.confidence, m.skeleton.bone_array, m.rate_hz, skeleton=m.skeleton,
+                      sensor_bias="off")
+    np.testing.assert_allclose(off, want, atol=1e-12)
+    assert np.linalg.norm(on - off, axis=2).mean() > 0.005
