@@ -27,13 +27,12 @@ SKELETON = get_skeleton("kinect_v1_uiprmd")
 
 @pytest.fixture(scope="module")
 def sensor_poses(shared_data):
-    """Every 20th trustworthy UI-PRMD repetition's raw Kinect v1 joints (real poses), metres."""
+    """Every 20th trustworthy UI-PRMD repetition's raw Kinect v1 joints (real poses), metres, whole frames."""
     from streamfix.io.paired import find_takes, load_take
 
     refs = [r for r in find_takes(shared_data / "paired", subset="trustworthy") if r.dataset == "uiprmd"][::20]
     takes = [load_take(r).sensor.positions for r in refs]
-    return [np.where(np.isfinite(p).all(axis=(1, 2))[:, None, None], p, np.nan)[np.isfinite(p).all(axis=(1, 2))]
-            for p in takes]
+    return [p[np.isfinite(p).all(axis=(1, 2))] for p in takes]  # the frames with every joint
 
 
 def _fit(pairs, **kw):

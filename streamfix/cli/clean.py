@@ -253,6 +253,8 @@ def _run_archive(args: argparse.Namespace) -> int:
         return 2
     if not check_sensor_bias_option("clean", args.sensor_bias):
         return 2
+    from ..sensor_bias.shipped import is_model_path
+
     try:
         seconds, frames = _lookahead(args)
     except ValueError as exc:
@@ -262,7 +264,7 @@ def _run_archive(args: argparse.Namespace) -> int:
         gapfill=not args.no_gapfill,
         training=tuple(str(Path(t).resolve()) for t in args.training) if args.training else None,
         keep_filled=args.keep_filled, prior=str(Path(args.prior).resolve()) if args.prior else None,
-        sensor_bias=args.sensor_bias if args.sensor_bias in ("auto", "off", "none") else str(Path(args.sensor_bias).resolve()),
+        sensor_bias=str(Path(args.sensor_bias).resolve()) if is_model_path(args.sensor_bias) else args.sensor_bias,
     )
     t0 = time.monotonic()
 

@@ -47,7 +47,9 @@ def add_sensor_bias_argument(parser: argparse.ArgumentParser) -> None:
 
 def check_sensor_bias_option(command: str, value: str) -> bool:
     """``--sensor-bias``: False (after one line on stderr) when a PATH given is not a model file."""
-    if value in ("auto", "off", "none"):
+    from ..sensor_bias.shipped import is_model_path
+
+    if not is_model_path(value):
         return True
     from ..io.pose_bias_model import load_pose_bias
 

@@ -102,9 +102,6 @@ class PoseBiasModel:
     ridge: float = 0.0
     training_subjects: tuple[str, ...] = ()  # the people it was fitted on (an evaluation never scores them with it)
 
-    def index(self, name: str) -> int:
-        return self.joint_names.index(name)
-
 
 def correction_gain(rate_hz: float, time_constant_s: float = CORRECTION_TIME_CONSTANT_S) -> float:
     """One-pole gain ``1 - exp(-1 / (rate_hz * time_constant_s))`` (0.49 at 30 Hz) for smoothing the correction."""
@@ -126,8 +123,7 @@ def body_frames(positions: np.ndarray, frame_idx: tuple[int, int, int, int]) -> 
     return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
-def _segment_index(model_or_names, groups) -> list[np.ndarray]:
-    names = model_or_names
+def _segment_index(names: tuple[str, ...], groups) -> list[np.ndarray]:
     return [np.array([[names.index(a), names.index(b)] for a, b in g]) for g in groups]
 
 
@@ -258,7 +254,7 @@ def fit_pose_bias(
     corrected_idx = np.array([names.index(n) for n in corrected])
     frame_idx = tuple(names.index(n) for n in frame_joints)
     segments = _segment_index(names, groups)
-    feats, errors, linears = [], [], []
+    feats, errors, linears = [], [], []  # per take: all features, body-frame errors, linear features
     for output, reference in takes:
         output = np.asarray(output, dtype=np.float64)
         reference = np.asarray(reference, dtype=np.float64)
@@ -271,23 +267,22 @@ def fit_pose_bias(
             continue
         feats.append(full[ok])
         errors.append(body_frame_errors(output[ok], reference[ok], frames[ok], corrected_idx).reshape(int(ok.sum()), -1))
-        linears.append((linear[ok], full[ok]))
+        linears.append(linear[ok])
     if not feats:
         raise ValueError(f"no take has {min_frames} frames with every joint the {skeleton!r} bias model needs")
     f = np.concatenate(feats)
-    f -= f.mean(axis=0)
+    mean = f.mean(axis=0)
+    f -= mean
     e = np.concatenate(errors)
     e -= e.mean(axis=0)  # the average offset, a matter of definition, is not learned
     n, n_feat = f.shape
     weights = np.linalg.solve(f.T @ f + ridge * n * np.eye(n_feat), f.T @ e)
-    lin_all = np.concatenate([lin for lin, _ in linears])
-    full_all = np.concatenate([full for _, full in linears])
-    mean = full_all.mean(axis=0)
+    lin_all = np.concatenate(linears)
     rng = np.random.default_rng(seed)
     sample = lin_all[rng.choice(len(lin_all), size=min(len(lin_all), 20000), replace=False)]
     centres = _kmeans(sample, n_centres, rng)
     dist = _nearest_centre_distance(lin_all, centres)
-    pred = ((full_all - mean) @ weights).reshape(len(full_all), len(corrected), 3)
+    pred = (f @ weights).reshape(n, len(corrected), 3)
     max_corr = np.quantile(np.linalg.norm(pred, axis=2), CLIP_QUANTILE, axis=0)
     mix = np.zeros((len(names), len(corrected)))
     mix[corrected_idx, np.arange(len(corrected))] = 1.0

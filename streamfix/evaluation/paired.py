@@ -69,7 +69,7 @@ from ..io.paired import PairedTake, TakeRef, default_paired_dir, find_takes, loa
 from . import registry
 from .registry import handover_frames
 
-__all__ = ["run_paired", "score_take", "held_out_bias_models", "aggregate", "body_region", "handover_frames", "print_paired_table",
+__all__ = ["run_paired", "score_take", "held_out_bias_models", "region_masks", "aggregate", "body_region", "handover_frames", "print_paired_table",
            "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
 
 DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix",
@@ -101,10 +101,10 @@ def _takes_skeleton() -> bool:
     return "skeleton" in inspect.signature(registry.run_method).parameters
 
 
-def _region_joints(take: PairedTake) -> dict[str, np.ndarray]:
-    names = take.sensor.skeleton.joint_names
-    lower = np.array([body_region(n) == "lower" for n in names])
-    everything = np.ones(len(names), dtype=bool)
+def region_masks(joint_names) -> dict[str, np.ndarray]:
+    """``{region: (J,) bool}`` for :data:`REGIONS` (:func:`body_region` of each joint name)."""
+    lower = np.array([body_region(n) == "lower" for n in joint_names])
+    everything = np.ones(len(lower), dtype=bool)
     return {"all": everything, "upper": ~lower, "lower": lower}
 
 
@@ -119,7 +119,7 @@ def score_take(take: PairedTake, methods: list[str], sensor_bias=None) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # joints without a reference: NaN speed
         speed = np.nanmean(np.linalg.norm(np.diff(ref, axis=0), axis=2), axis=0)
-    regions = _region_joints(take)
+    regions = region_masks(take.sensor.skeleton.joint_names)
     out: dict = {}
     for name in methods:
         t0 = time.perf_counter()

@@ -56,8 +56,8 @@ def write_card(model_path: str | Path, model: PoseBiasModel, takes: list[Trainin
     model_path = Path(model_path)
     used = [t for t in takes if t.skeleton == model.skeleton]
     frames = int(sum(len(t.output) for t in used))
+    minutes = sum(len(t.output) / t.rate_hz for t in used) / 60.0
     subjects = sorted({t.subject for t in used})
-    rate = 30.0
     lines = [
         f"# Pose-bias model `{model_path.name}` ({model.skeleton})",
         "",
@@ -72,7 +72,7 @@ def write_card(model_path: str | Path, model: PoseBiasModel, takes: list[Trainin
         "## Data",
         f"- {LICENCES.get(model.skeleton, 'licence unknown: do not ship')}.",
         f"- Every trustworthy repetition of the paired directory ({data_dir or 'default: ../shared/data/paired'}): "
-        f"{len(used)} repetitions, {frames} frames (about {frames / rate / 60:.0f} minutes at 30 Hz), subjects "
+        f"{len(used)} repetitions, {frames} frames (about {minutes:.0f} minutes), subjects "
         f"{', '.join(subjects)}, 10 movements.",
         f"- Inputs: the engine's clean output without bias correction (`{TRAINING_METHOD}`, the file schedule, "
         "what `streamfix clean` writes); targets: the Vicon reference joints (marker means, "

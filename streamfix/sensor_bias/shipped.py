@@ -15,10 +15,15 @@ from ..core.pose_bias import PoseBiasModel
 from ..io.pose_bias_model import load_pose_bias
 from ..skeletons import Skeleton
 
-__all__ = ["MODELS_DIR", "shipped_model", "resolve_sensor_bias", "OFF"]
+__all__ = ["MODELS_DIR", "shipped_model", "resolve_sensor_bias", "is_model_path", "OFF"]
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 OFF = ("off", "none", "")
+
+
+def is_model_path(setting: Any) -> bool:
+    """True when ``setting`` names a model file rather than ``auto`` / ``off`` (or is a model)."""
+    return isinstance(setting, (str, Path)) and str(setting).lower() not in OFF + ("auto",)
 
 
 @functools.lru_cache(maxsize=None)
@@ -35,7 +40,7 @@ def resolve_sensor_bias(setting: Any, skeleton: Skeleton) -> PoseBiasModel | Non
     """
     if setting is None or (isinstance(setting, str) and setting.lower() in OFF):
         return None
-    if isinstance(setting, str) and setting == "auto":
+    if isinstance(setting, str) and setting.lower() == "auto":
         model = shipped_model(skeleton.name)
         return model if model is not None and model.joint_names == tuple(skeleton.joint_names) else None
     model = setting if isinstance(setting, PoseBiasModel) else load_pose_bias(Path(setting))

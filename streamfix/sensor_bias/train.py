@@ -26,7 +26,7 @@ from ..io.paired import PairedTake, TakeRef, find_takes, load_take
 from .layouts import BIAS_LAYOUTS, BiasLayout
 
 __all__ = ["TrainingTake", "engine_outputs", "fit_layout_model", "leave_one_subject_out", "subject_folds",
-           "REGION_JOINTS", "TRAINING_METHOD", "paired_takes"]
+           "TRAINING_METHOD", "paired_takes"]
 
 TRAINING_METHOD = "streamfix"  # the engine's clean output on the file schedule, what `clean` writes
 
@@ -100,20 +100,11 @@ def subject_folds(takes: list[TrainingTake], *, seed: int = 0) -> dict[str, Pose
     return {s: fit_layout_model([t for t in takes if t.subject != s], seed=seed) for s in subjects}
 
 
-#: joint names of each region for the scores (``streamfix.evaluation.paired.body_region``'s split)
-REGION_JOINTS = ("upper", "lower")
-
-
-def _region_masks(names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    from ..evaluation.paired import body_region
-
-    lower = np.array([body_region(n) == "lower" for n in names])
-    return {"upper": ~lower, "lower": lower}
-
-
 def leave_one_subject_out(takes: list[TrainingTake], *, seed: int = 0) -> list[dict]:
     """Per held-out subject and region: mean error (m) of the output before and after its fold's model,
     debiased (``before_m``, ``after_m``: each joint's mean offset over the take removed) and raw."""
+    from ..evaluation.paired import region_masks
+
     folds = subject_folds(takes, seed=seed)
     rows = []
     for subject, model in folds.items():
@@ -122,7 +113,9 @@ def leave_one_subject_out(takes: list[TrainingTake], *, seed: int = 0) -> list[d
             ref = t.reference.astype(np.float64)
             before = t.output.astype(np.float64)
             after = remove_pose_bias(before, t.bones, model, correction_gain(t.rate_hz))[0]  # what the engine emits
-            for region, joints in _region_masks(t.joint_names).items():
+            for region, joints in region_masks(t.joint_names).items():
+                if region == "all":
+                    continue
                 errs = [np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)[:, joints] for y in (before, after)]
                 errs += [np.linalg.norm(y - ref, axis=2)[:, joints] for y in (before, after)]
                 ok = np.logical_and.reduce([np.isfinite(e) for e in errs])
