@@ -13,6 +13,10 @@ For each file and method, a record::
      rigid_shift_bound_m, tenth_shift_bound_m,       # per file: the least mean move of tracked joint-frames
                                                      #   that makes every bone its median length / cuts
                                                      #   every bone's length error to a tenth (core.rigid_bound)
+     least_move_m, least_move_feasible,              # with least_move=True, per file: the least mean move of
+                                                     #   tracked joint-frames found for an output with jitter at
+                                                     #   most median_savgol's and bone CV at most a tenth of the
+                                                     #   input's (core.least_move; None without it)
      time_s}
 
 ``*_ratio`` = after / before (lower is better). The ``level`` argument is ignored.
@@ -24,6 +28,7 @@ import time
 import numpy as np
 
 from ..core import metrics
+from ..core.least_move import least_move_meeting_bars
 from ..core.rigid_bound import least_shift_to_rigid
 from ..limbs import mirror_bones
 from .registry import METHODS, load_motion, run_method
@@ -41,8 +46,19 @@ def _finite(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> list[dict]:
-    """Score each method on real recordings (see the module doc for the record)."""
+LEAST_MOVE_CV_SHARE = 0.1
+"""The bone-CV bar :func:`least_move_meeting_bars` is asked to meet: this x the input's (issue 8)."""
+
+
+def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None, least_move: bool = False) -> list[dict]:
+    """Score each method on real recordings (see the module doc for the record).
+
+    ``least_move``: also find, per file, the least move of the tracked joints with which an
+    output meets median_savgol's jitter and a bone CV :data:`LEAST_MOVE_CV_SHARE` of the
+    input's (:mod:`streamfix.core.least_move`, seconds per file); needs ``median_savgol``
+    among the methods."""
+    if least_move and "median_savgol" not in (methods or METHODS):
+        raise ValueError("least_move needs median_savgol among the methods (its jitter is the bar)")
     methods = list(methods or METHODS)  # the methods these protocols run (not other protocols')
     records: list[dict] = []
     for path in paths:
@@ -62,6 +78,7 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
         n_tracked = max(int(tracked.sum()), 1)
         rigid_bound = float(least_shift_to_rigid(x, obs, tracked, bones).sum()) / n_tracked
         tenth_bound = float(least_shift_to_rigid(x, obs, tracked, bones, keep=0.1).sum()) / n_tracked
+        first = len(records)
         for name in methods:
             t0 = time.perf_counter()
             y = run_method(name, x, conf, bones, motion.rate_hz, skeleton=motion.skeleton)
@@ -95,8 +112,17 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None) -> lis
                 "inferred_asymmetry_input": _finite(asym_in),
                 "rigid_shift_bound_m": rigid_bound,
                 "tenth_shift_bound_m": tenth_bound,
+                "least_move_m": None,
+                "least_move_feasible": None,
                 "time_s": dt,
             })
+            if name == "median_savgol":
+                smoother = y
+        if least_move:
+            found = least_move_meeting_bars(x, tracked, obs, bones, metrics.jitter(np.where(obs[..., None], smoother, np.nan)),
+                                            LEAST_MOVE_CV_SHARE * cv_in, start=smoother)
+            for r in records[first:]:
+                r["least_move_m"], r["least_move_feasible"] = found.move_m, found.feasible
     return records
 
 
