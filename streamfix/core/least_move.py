@@ -28,6 +28,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .isometry import bone_vectors, incidence_matrix
 from .metrics import bone_length_cv, jitter
 
 __all__ = ["LeastMove", "least_move_meeting_bars", "bar_terms"]
@@ -37,8 +39,8 @@ SMOOTH_M = 1e-5
 
 LEARNING_RATE_M = (1e-3, 1e-5)
 """First and last step (m) of the gradient steps; the move is an l1-like term, sharp where a
-joint is left where it was, which first-order steps of shrinking size cross (L-BFGS stalled there:
-on seated_joints.csv it stopped at 1.48x median+Savitzky-Golay's move where these reach 1.30x)."""
+joint is left where it was, which first-order steps of shrinking size cross (L-BFGS stalled at
+that kink well above where these steps end, on seated_joints.csv)."""
 
 ADAM_BETAS = (0.9, 0.999)
 PENALTY = 10.0
@@ -62,7 +64,7 @@ class LeastMove:
 
 
 def bar_terms(y: np.ndarray, x: np.ndarray, counted: np.ndarray, observed: np.ndarray, bones: np.ndarray,
-              with_gradient: bool = True, smooth_m: float = SMOOTH_M):
+              with_gradient: bool = True, incidence: np.ndarray | None = None):
     """``(move, jitter, cv)`` of output ``y`` against input ``x`` (all ``(T, J, 3)`` m) and, with
     ``with_gradient``, their gradients ``(T, J, 3)`` (the same three, in that order).
 
@@ -70,11 +72,12 @@ def bar_terms(y: np.ndarray, x: np.ndarray, counted: np.ndarray, observed: np.nd
     differences whose three frames are observed, bone CV over the frames where both ends
     are, each bone's std over mean, averaged over bones seen in at least two frames.
     Distances are smoothed by :data:`SMOOTH_M` (a 10 um change to what the metrics say).
+    ``incidence``: :func:`~streamfix.core.isometry.incidence_matrix` of the bones, when the caller keeps one.
     """
     obs = np.asarray(observed, dtype=bool)
     cnt = np.asarray(counted, dtype=bool) & obs
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
-    eps2 = smooth_m ** 2
+    eps2 = SMOOTH_M ** 2
     # move: mean |y - x| over counted joint-frames
     d = y - x
     dn = np.sqrt((d * d).sum(axis=2) + eps2)
@@ -87,7 +90,7 @@ def bar_terms(y: np.ndarray, x: np.ndarray, counted: np.ndarray, observed: np.nd
     n2 = max(int(ok2.sum()), 1)
     jit = float(d2n[ok2].sum() / n2)
     # bone CV: mean over bones of std_t(l) / mean_t(l) over frames with both ends observed
-    u = y[:, b[:, 0]] - y[:, b[:, 1]]                       # (T, B, 3)
+    u = bone_vectors(y, b)                                   # (T, B, 3)
     ln = np.sqrt((u * u).sum(axis=2) + eps2)                 # (T, B)
     okb = obs[:, b[:, 0]] & obs[:, b[:, 1]]
     nb = okb.sum(axis=0)
@@ -112,9 +115,8 @@ def bar_terms(y: np.ndarray, x: np.ndarray, counted: np.ndarray, observed: np.nd
     s_safe = np.maximum(std, 1e-12)
     dl = (dev / (nb_safe * s_safe * m_safe) - (std / (nb_safe * m_safe ** 2))) * (okb & seen) / n_bones
     gu = (dl / ln)[..., None] * u                            # (T, B, 3)
-    incidence = np.zeros((len(b), y.shape[1]))
-    incidence[np.arange(len(b)), b[:, 0]] = 1.0
-    incidence[np.arange(len(b)), b[:, 1]] = -1.0
+    if incidence is None:
+        incidence = incidence_matrix(b, y.shape[1])
     g_cv = np.matmul(gu.transpose(0, 2, 1), incidence).transpose(0, 2, 1)  # scatter to both ends
     return (move, jit, cv), (g_move, g_jit, g_cv)
 
@@ -156,8 +158,9 @@ def least_move_meeting_bars(
     m1 = np.zeros_like(y)
     m2 = np.zeros_like(y)
     free = obs[..., None]
+    incidence = incidence_matrix(bones, x.shape[1])
     for k in range(steps):
-        (move, jit, cv), (g_move, g_jit, g_cv) = bar_terms(y, x0, cnt, obs, bones)
+        (_, jit, cv), (g_move, g_jit, g_cv) = bar_terms(y, x0, cnt, obs, bones, incidence=incidence)
         violation = np.array([jit, cv]) / targets - 1.0
         if k % MULTIPLIER_EVERY == MULTIPLIER_EVERY - 1:
             lam = np.maximum(0.0, lam + PENALTY * violation)

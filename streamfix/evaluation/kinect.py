@@ -117,10 +117,10 @@ def run_kinect(paths, *, rate_hz=None, levels=None, seed=0, methods=None, least_
                 "time_s": dt,
             })
             if name == "median_savgol":
-                smoother = y
+                smoother, smoother_jitter = y, jit
         if least_move:
-            found = least_move_meeting_bars(x, tracked, obs, bones, metrics.jitter(np.where(obs[..., None], smoother, np.nan)),
-                                            LEAST_MOVE_CV_SHARE * cv_in, start=smoother)
+            found = least_move_meeting_bars(x, tracked, obs, bones, smoother_jitter, LEAST_MOVE_CV_SHARE * cv_in,
+                                            start=smoother)
             for r in records[first:]:
                 r["least_move_m"], r["least_move_feasible"] = found.move_m, found.feasible
     return records
