@@ -17,6 +17,11 @@ topic), each method's seam at its own schedule's window hand-overs:
 * both datasets, all joints: seam ratio (second difference on the frames next to a
   window hand-over / other frames) <= 1.1.
 
+The same bars are also reported per UI-PRMD person, each pooled over that person's takes only
+(:func:`person_bars`; printed and written as ``per_person``, not counted as bars): the same
+checks run on people kept back, and the spread over the shared data's six people is the
+estimate of where those land.
+
 Baselines are the methods run other than ``input`` and ``streamfix*`` (a whole-take solve,
 ``streamfix_whole``, is not a baseline); a method the
 registry does not know is skipped with a warning. Takes run in ``--workers`` processes
@@ -106,6 +111,38 @@ def check_bars(records: list[dict], method: str = "streamfix") -> list[dict]:
     return bars
 
 
+def person_bars(records: list[dict]) -> list[dict]:
+    """``[{person, method, takes, bar, value, target, ok}]``: :func:`check_bars` on each person's
+    own records (``run_paired(by_person=True)``), for each engine method.
+
+    Not bars of their own (the issue's are on the pooled data): the spread over the shared
+    data's people is the estimate of where people kept back will land, so a pooled value
+    that holds while some people miss it holds with little room."""
+    rows = []
+    for person in sorted({r["person"] for r in records}):
+        mine = [r for r in records if r["person"] == person]
+        for method in ENGINE_SCHEDULES:
+            if any(r["method"] == method for r in mine):
+                takes = next(r["n_takes"] for r in mine if r["method"] == method)
+                rows += [{"person": person, "method": method, "takes": takes, **b} for b in check_bars(mine, method)
+                         if "seam" not in b["bar"]]
+    return rows
+
+
+def print_person_bars(rows: list[dict], out=None) -> None:
+    """One line per (person, method): each bar's value, ``!`` where the person misses it."""
+    out = sys.stdout if out is None else out
+    lines: dict[tuple, list[str]] = {}
+    for r in rows:
+        short = r["bar"].split(": ", 1)[0].replace("uiprmd ", "") + " " + (
+            "jitter" if "jitter" in r["bar"] else "p95" if "p95" in r["bar"] else
+            "/best" if "best baseline" in r["bar"] else "x input")
+        v = "-" if r["value"] is None else f"{r['value']:.3f}"
+        lines.setdefault((r["person"], r["method"], r["takes"]), []).append(f"{short} {v}{'' if r['ok'] else '!'}")
+    for (person, method, takes), cells in lines.items():
+        print(f"  {person:<5} {method:<16} {takes:>4} takes  " + "  ".join(cells), file=out)
+
+
 def temporal_floor(records: list[dict]) -> list[dict]:
     """Per dataset and region: the input's debiased error below 3 Hz over its whole debiased error.
 
@@ -130,7 +167,7 @@ def _git_commit() -> str | None:
         return None
 
 
-def _markdown(records: list[dict], bars: list[dict], info: dict, floor: list[dict]) -> str:
+def _markdown(records: list[dict], bars: list[dict], info: dict, floor: list[dict], people: list[dict]) -> str:
     import io
 
     buf = io.StringIO()
@@ -156,6 +193,12 @@ def _markdown(records: list[dict], bars: list[dict], info: dict, floor: list[dic
     for b in bars:
         v = "-" if b["value"] is None else f"{b['value']:.3f}"
         lines.append(f"| {b['bar']} | {v} | {b['target']:g} | {'ok' if b['ok'] else 'MISSED'} |")
+    if people:
+        pbuf = io.StringIO()
+        print_person_bars(people, out=pbuf)
+        lines += ["", "The same bars per person, each pooled over that person's takes only (not bars themselves: "
+                  "the spread says how much room the pooled values leave for people kept back; `!` = this person "
+                  "misses it):", "", "```", pbuf.getvalue().rstrip("\n"), "```"]
     lines += ["", "The input's error below 3 Hz, which no zero-lag temporal filter removes (`temporal_floor`):", "",
               "| dataset | region | input debiased mm | below 3 Hz mm | x input |", "| --- | --- | --- | --- | --- |"]
     for f in floor:
@@ -194,19 +237,24 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", UserWarning)
-        records = run_paired([PAIRED], methods=methods, subset="trustworthy", limit=args.limit,
-                             workers=args.workers, progress=progress)
+        every = run_paired([PAIRED], methods=methods, subset="trustworthy", limit=args.limit,
+                           workers=args.workers, progress=progress, by_person=True)
     seconds = time.perf_counter() - t0
     skipped = [str(w.message) for w in caught if "skipping method" in str(w.message)]
     for msg in skipped:
         print(f"warning: {msg}", file=sys.stderr)
+    records = [r for r in every if "person" not in r]
     print_paired_table(records)
     bars = [b for m in ENGINE_SCHEDULES if any(r["method"] == m for r in records)
             for b in check_bars(records, m)]
+    people = person_bars([r for r in every if "person" in r])
     print()
     for b in bars:
         v = "-" if b["value"] is None else f"{b['value']:.3f}"
         print(f"{'ok    ' if b['ok'] else 'MISSED'} {b['bar']}: {v} (target {b['target']:g})")
+    if people:
+        print("\nthe same bars per person (not bars themselves; ! = this person misses it):")
+        print_person_bars(people)
     floor = temporal_floor(records)
     print("\nthe input's debiased error below 3 Hz (no zero-lag temporal filter removes it):")
     for f in floor:
@@ -218,9 +266,10 @@ def main(argv: list[str] | None = None) -> int:
             "prior": str(args.prior) if args.prior is not None else "shipped"}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        report = {"run": info, "bars": bars, "temporal_floor": floor, "records": records}
+        report = {"run": info, "bars": bars, "per_person": people, "temporal_floor": floor, "records": records,
+                  "person_records": [r for r in every if "person" in r]}
         (out_dir / "paired.json").write_text(json.dumps(_clean(report), indent=1) + "\n")
-        (out_dir / "paired.md").write_text(_markdown(records, bars, info, floor))
+        (out_dir / "paired.md").write_text(_markdown(records, bars, info, floor, people))
         print(f"wrote {out_dir / 'paired.json'} and {out_dir / 'paired.md'}")
     missed = [b for b in bars if not b["ok"]]
     print(f"{len(bars) - len(missed)}/{len(bars)} bars met ({seconds:.0f} s)")

@@ -85,3 +85,24 @@ def test_bad_options_fail_clearly(capsys):
     assert "needs FILE" in capsys.readouterr().err
     assert main(["eval", "--protocol", "paired", "/no/such/dir", "--methods", "input"]) == 1
     assert "/no/such/dir" in capsys.readouterr().err
+
+
+def test_per_person_records_pool_back_to_the_dataset_records():
+    """``by_person=True`` adds each UI-PRMD subject's own records; together they are the pooled ones."""
+    recs = run_paired(methods=["input", "median_savgol"], limit=12, by_person=True)
+    pooled = {(r["dataset"], r["method"], r["region"]): r for r in recs if "person" not in r}
+    people = [r for r in recs if "person" in r]
+    assert {r["dataset"] for r in people} == {"uiprmd"}  # KERAAL's take names no person
+    assert len({r["person"] for r in people}) >= 2 and all(r["person"].startswith("s") for r in people)
+    for key, whole in pooled.items():
+        mine = [r for r in people if (r["dataset"], r["method"], r["region"]) == key]
+        if key[0] != "uiprmd":
+            assert not mine
+            continue
+        assert sum(r["n_takes"] for r in mine) == whole["n_takes"]
+        assert sum(r["n_frames"] for r in mine) == whole["n_frames"]
+        # pooled over joint-frames: between the people's own values, never outside them
+        for k in ("mean_error_m", "debiased_mean_m", "debiased_p95_m", "jitter_ratio"):
+            values = [r[k] for r in mine]
+            assert min(values) <= whole[k] <= max(values), (key, k)
+        assert len({round(r["debiased_mean_m"], 6) for r in mine}) > 1  # each pools its own takes

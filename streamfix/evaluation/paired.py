@@ -50,7 +50,7 @@ some people. A take of one of those people is scored with a model fitted on ever
 person's trustworthy takes of the same source instead (:func:`held_out_bias_models`), so no
 take is scored by a model that saw its person; takes of anyone else get the engine's
 default (``auto``: the model shipped for the skeleton, if any). The records say which
-(``sensor_bias``).
+(``sensor_bias``). ``by_person=True`` adds the same records pooled per person (``person``).
 """
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ from ..io.paired import PairedTake, TakeRef, default_paired_dir, find_takes, loa
 from . import registry
 from .registry import handover_frames
 
-__all__ = ["run_paired", "score_take", "held_out_bias_models", "region_masks", "aggregate", "body_region", "handover_frames", "print_paired_table",
+__all__ = ["run_paired", "score_take", "held_out_bias_models", "person_of", "region_masks", "aggregate", "body_region", "handover_frames", "print_paired_table",
            "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
 
 DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix",
@@ -259,6 +259,11 @@ def _uiprmd_subject(key: str) -> str:
     return next((p for p in key.split("_") if p.startswith("s") and p[1:].isdigit()), "")
 
 
+def person_of(ref: TakeRef) -> str:
+    """The person a take records (UI-PRMD's ``s01`` ...); "" where the data does not say."""
+    return _uiprmd_subject(ref.key) if ref.dataset == "uiprmd" else ""
+
+
 def known_methods(methods) -> list[str]:
     """The requested methods (None = :data:`DEFAULT_METHODS`) the registry knows; others
     are skipped with a warning."""
@@ -275,7 +280,7 @@ def known_methods(methods) -> list[str]:
 
 
 def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, subset: str = "trustworthy",
-               limit: int | None = None, workers: int = 1, progress=None) -> list[dict]:
+               limit: int | None = None, workers: int = 1, progress=None, by_person: bool = False) -> list[dict]:
     """Score methods on the paired recordings (see the module doc for the records).
 
     ``paths``: paired directories or files (:func:`streamfix.io.paired.find_takes`;
@@ -283,6 +288,10 @@ def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, sub
     ``limit``: at most N repetitions per dataset, spread over the list. ``workers``:
     processes (takes are independent). ``levels`` and ``seed`` do not apply (real data,
     no corruption); ``rate_hz`` must be None: every take runs at its sensor's rate.
+    ``by_person``: also one record per (dataset, person, method, region), pooled over that
+    person's takes only, with ``person`` set (UI-PRMD's subjects; the pooled records have no
+    ``person`` key). Why: the same checks run on people kept back, and how far each person
+    of the shared data sits from a bar says how much room the pooled figure leaves.
     """
     if rate_hz is not None:
         raise ValueError(f"the paired protocol runs each take at its sensor's own rate; got --rate {rate_hz:g}")
@@ -311,12 +320,19 @@ def run_paired(paths=(), *, rate_hz=None, levels=None, seed=0, methods=None, sub
                 if progress is not None:
                     progress(i + 1, len(jobs))
         held_datasets = {r.dataset for r in refs if r.key in held_out}
-        for rec in aggregate(part):
-            rec["file"] = str(src)
-            rec["subset"] = subset
-            if rec["method"] in registry.ENGINE_SCHEDULES:
-                rec["sensor_bias"] = "held-out person" if rec["dataset"] in held_datasets else "auto"
-            records.append(rec)
+        groups = [(None, part)]
+        if by_person:
+            people = [person_of(r) for r in refs]
+            groups += [(p, [pt for pt, q in zip(part, people) if q == p]) for p in sorted(set(people) - {""})]
+        for person, partials in groups:
+            for rec in aggregate(partials):
+                rec["file"] = str(src)
+                rec["subset"] = subset
+                if person is not None:
+                    rec["person"] = person
+                if rec["method"] in registry.ENGINE_SCHEDULES:
+                    rec["sensor_bias"] = "held-out person" if rec["dataset"] in held_datasets else "auto"
+                records.append(rec)
     return records
 
 
