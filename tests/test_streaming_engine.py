@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -370,7 +371,17 @@ def test_clean_on_poll_leaves_the_clean_work_to_poll_with_the_same_output(kinect
 
     engine = ThreadedStreamEngine(KINECT_V2, cfg, savgol_solver, body_ordinals=itertools.count().__next__,
                                   clean_on_poll=True)
-    pushed = [engine.push(f) for f in frames_of(kinect, uniform=True)]  # never polled
+    pushed = []
+    for f in frames_of(kinect, uniform=True):  # never polled
+        pushed.append(engine.push(f))
+        # a sensor's frame period (three of them here) between pushes, as serve has: the pool
+        # solves the windows the push handed it in the meantime, so the next push has a frame
+        # to drain whatever the test machine's load. Back to back, every push could come
+        # before the first window was solved (a window scheduled by a push is handed to the
+        # pool by the next one, so a few frames here always wait the whole period).
+        deadline = time.monotonic() + 3.0 / 30.0
+        while engine.metrics()["pending_windows"] and time.monotonic() < deadline:
+            time.sleep(0.001)
     assert all([k for k, _ in got][-1] == "live" for got in pushed)
     assert any(k == "clean" for got in pushed for k, _ in got)  # drained by the next push
     clean = split([o for got in pushed for o in got] + engine.flush())[1]
