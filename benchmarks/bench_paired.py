@@ -134,13 +134,11 @@ def print_person_bars(rows: list[dict], out=None) -> None:
     out = sys.stdout if out is None else out
     lines: dict[tuple, list[str]] = {}
     for r in rows:
-        short = r["bar"].split(": ", 1)[0].replace("uiprmd ", "") + " " + (
-            "jitter" if "jitter" in r["bar"] else "p95" if "p95" in r["bar"] else
-            "/best" if "best baseline" in r["bar"] else "x input")
+        name = r["bar"].replace("uiprmd ", "").replace(f"{r['method']} ", "")  # e.g. "upper: debiased mean / input"
         v = "-" if r["value"] is None else f"{r['value']:.3f}"
-        lines.setdefault((r["person"], r["method"], r["takes"]), []).append(f"{short} {v}{'' if r['ok'] else '!'}")
+        lines.setdefault((r["person"], r["method"], r["takes"]), []).append(f"{name} {v}{'' if r['ok'] else '!'}")
     for (person, method, takes), cells in lines.items():
-        print(f"  {person:<5} {method:<16} {takes:>4} takes  " + "  ".join(cells), file=out)
+        print(f"  {person:<5} {method:<16} {takes:>4} takes  " + "; ".join(cells), file=out)
 
 
 def temporal_floor(records: list[dict]) -> list[dict]:
@@ -266,8 +264,7 @@ def main(argv: list[str] | None = None) -> int:
             "prior": str(args.prior) if args.prior is not None else "shipped"}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        report = {"run": info, "bars": bars, "per_person": people, "temporal_floor": floor, "records": records,
-                  "person_records": [r for r in every if "person" in r]}
+        report = {"run": info, "bars": bars, "per_person": people, "temporal_floor": floor, "records": records}
         (out_dir / "paired.json").write_text(json.dumps(_clean(report), indent=1) + "\n")
         (out_dir / "paired.md").write_text(_markdown(records, bars, info, floor, people))
         print(f"wrote {out_dir / 'paired.json'} and {out_dir / 'paired.md'}")

@@ -24,7 +24,7 @@ def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndar
         return finite
     observed = np.asarray(observed, dtype=bool)
     if observed.shape != finite.shape:
-        raise ValueError(f"observed must have shape {finite.shape}, got {observed.shape}")
+        raise ValueError(f"observed must be {finite.shape}, got {observed.shape}")
     return observed & finite
 
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .interpolate import observed_mask
 from .isometry import bone_vectors, incidence_matrix
 from .metrics import bone_length_cv, jitter
 
@@ -143,12 +144,9 @@ def least_move_meeting_bars(
     x = np.asarray(positions, dtype=np.float64)
     if x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
-    obs = np.asarray(observed, dtype=bool)
-    if obs.shape != x.shape[:2]:
-        raise ValueError(f"observed must be {x.shape[:2]}, got {obs.shape}")
+    obs = observed_mask(x, observed)
     if not (jitter_max > 0 and cv_max > 0):
         raise ValueError(f"jitter_max and cv_max must be positive, got {jitter_max} and {cv_max}")
-    obs = obs & np.isfinite(x).all(axis=2)
     cnt = np.asarray(counted, dtype=bool) & obs
     x0 = np.where(obs[..., None], x, 0.0)
     y = x0.copy() if start is None else np.where(obs[..., None], np.asarray(start, dtype=np.float64), 0.0)

@@ -35,6 +35,7 @@ import numpy as np
 
 from streamfix.canonical import CANONICAL_JOINTS, CANONICAL_LIMBS, Layout, layout_for_joint_count, to_canonical
 
+from ..core.interpolate import observed_mask
 from .data import cut_windows, resample_masked
 from .init import overlap_add
 from .runtime import Prior, load_default_prior
@@ -94,9 +95,7 @@ def limb_residuals(
     x = np.asarray(positions, dtype=np.float64)
     if x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
-    obs = np.asarray(observed, dtype=bool)
-    if obs.shape != x.shape[:2]:
-        raise ValueError(f"observed must be {x.shape[:2]}, got {obs.shape}")
+    obs = observed_mask(x, observed)
     layout: Layout = layout_for_joint_count(x.shape[1])
     cx, cobs = to_canonical(x, obs, layout)
     n = x.shape[0]
