@@ -139,3 +139,19 @@ def test_the_engine_tells_the_window_solver_which_frames_its_blend_uses(keraal):
     mine = PipelineConfig(outlier_threshold_m=0.02)
     clean_motion(motion, schedule_config("serve", 30.0, solver_config=mine), BridgingWindowSolver(base=recording))
     assert {(c.outlier_threshold_m, c.score_newest_frames) for c in seen} == {(0.02, 30)}
+
+
+def test_serve_plants_feet_while_the_trunk_leans_far(shared_data):
+    """``serve``'s 2 s windows at the bottom of an incorrect deep squat (the trunk 60 deg towards
+    the camera for seconds) and of a lunge see a trunk that leans in most frames; foot support
+    takes up from the frames where the person stood (core.support.up_direction), so the feet
+    the sensor lifts are planted as the file schedule, which sees the whole take, plants them."""
+    refs = {r.key: r for r in find_takes(shared_data / "paired", subset="trustworthy")}
+    sums: dict[str, list[np.ndarray]] = {}
+    for key in ("inc_m01_s03_e03", "inc_m03_s01_e06"):
+        part = score_take(load_take(refs[key]), ["input", "streamfix", "streamfix_serve"], sensor_bias="off")
+        for method in ("input", "streamfix", "streamfix_serve"):
+            sums.setdefault(method, []).append(part[(method, "lower")]["deb"])
+    mean = {m: float(np.concatenate(v).mean()) for m, v in sums.items()}
+    assert mean["streamfix_serve"] < 0.45 * mean["input"], mean
+    assert mean["streamfix_serve"] < 1.1 * mean["streamfix"], mean

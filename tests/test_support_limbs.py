@@ -80,6 +80,41 @@ def test_two_bone_ik_keeps_lengths_and_bends_towards_hint():
     assert (np.sum(off * bend, axis=1)[reach] >= -1e-9).all()
 
 
+def _lean_towards_camera(x: np.ndarray, degrees: np.ndarray) -> np.ndarray:
+    """``x`` with each frame's upper body (everything above the hips) turned about the hip
+    line by ``degrees`` (T,) towards -z, the camera's side: a squatter's forward lean."""
+    names = KV2.joint_names
+    upper = [j for j, n in enumerate(names) if not any(w in n for w in ("Hip", "Knee", "Ankle", "Foot", "SpineBase"))]
+    pivot = x[:, names.index("SpineBase")]
+    a = np.radians(degrees)[:, None]
+    y = x.copy()
+    rel = x[:, upper] - pivot[:, None]
+    y[:, upper, 1] = pivot[:, None, 1] + np.cos(a) * rel[..., 1] + np.sin(a) * rel[..., 2]
+    y[:, upper, 2] = pivot[:, None, 2] - np.sin(a) * rel[..., 1] + np.cos(a) * rel[..., 2]
+    return y
+
+
+def test_up_is_the_axis_the_trunk_stood_along_however_far_it_leans_later():
+    """A deep squat leans the trunk 40-62 deg towards the camera for seconds (UI-PRMD): the
+    median trunk direction of such a context is no axis at all (or the camera's z axis), but
+    the frames where the person stood upright say which axis is up."""
+    legs, shoulders = limb_layout(KV2).legs, limb_layout(KV2).shoulders
+    T = 90
+    for lean in (40.0, 62.0):
+        deg = np.r_[np.zeros(10), np.full(T - 10, lean)]  # upright for a third of a second, then leaning
+        up = up_direction(_lean_towards_camera(_standing(T), deg), legs, shoulders)
+        assert np.allclose(up, [0, 1, 0]), (lean, up)
+        # no upright frame in the context: the old rule, the median trunk (snapped within 32 deg)
+        up = up_direction(_lean_towards_camera(_standing(T), np.full(T, lean)), legs, shoulders)
+        assert not np.allclose(up, [0, 1, 0]), (lean, up)
+    # a camera tilted 25 deg: no frame stands along an axis; the median trunk snaps to y as before
+    up = up_direction(_lean_towards_camera(_standing(T), np.full(T, 25.0)), legs, shoulders)
+    assert np.allclose(up, [0, 1, 0])
+    # a camera tilted 40 deg: no axis is near, the trunk's own direction is up
+    up = up_direction(_lean_towards_camera(_standing(T), np.full(T, 40.0)), legs, shoulders)
+    assert 30.0 < np.degrees(np.arccos(up[1])) < 41.0 and up[2] < 0  # the hip-to-shoulder line leans a little less
+
+
 def test_folded_legs_are_planted_and_standing_is_untouched():
     truth = _standing(90)
     legs = limb_layout(KV2).legs

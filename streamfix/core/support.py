@@ -74,6 +74,10 @@ class SupportConfig:
     max_wild_fraction: float = 0.35  # leg samples > wild_m from a 5-frame median: above this, do nothing
     wild_m: float = 0.10
     axis_snap_cos: float = 0.85  # snap the up direction to a coordinate axis within ~32 deg
+    # a coordinate axis the trunk stands along (within ~20 deg) in some frames of the context is
+    # up, however far it leans in the others (up_direction)
+    upright_cos: float = 0.94
+    upright_min_s: float = 0.2  # ... in at least this many seconds of frames
     # span of the smoother over planted joints (0 = none): a planted leg is a guess (anchored
     # foot, knee by IK from the sensor's hip) with no detail of its own, only the hip's jitter,
     # so it is smoothed over about a whole window; 1 s left UI-PRMD's lower body 6 % further
@@ -81,10 +85,19 @@ class SupportConfig:
     planted_smooth_s: float = 2.5
 
 
-def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray | None, snap_cos: float = 0.85) -> np.ndarray:
-    """Unit up vector ``(3,)``: median direction from mid-hips to mid-shoulders (or mid-knees
-    to mid-hips without shoulders), snapped to the nearest coordinate axis when within
-    ``acos(snap_cos)`` of it (sensors and mocap are y- or z-up; a lean must not tilt the floor)."""
+def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray | None, snap_cos: float = 0.85,
+                 upright_cos: float = 0.94, upright_min_frames: int = 6) -> np.ndarray:
+    """Unit up vector ``(3,)`` from the trunk (mid-hips to mid-shoulders; mid-knees to
+    mid-hips without shoulders) over the frames given.
+
+    The camera does not move, the trunk does: in a squat or a lunge it leans 30-60 deg for
+    seconds (UI-PRMD's deep squats reach 62 deg towards the camera), so a window at the
+    bottom of one has a median trunk direction far from up. Sensors and mocap are y- or
+    z-up, so: the signed coordinate axis the trunk stands along, within ``acos(upright_cos)``,
+    in the most frames (at least ``upright_min_frames``: the person stood upright somewhere
+    in the context, the body's history included); else the median trunk direction, snapped
+    to the nearest axis when within ``acos(snap_cos)`` of it (a tilted camera: none is near).
+    """
     hips = positions[:, legs[:, 0]].mean(axis=1)
     top = positions[:, shoulders].mean(axis=1) if shoulders is not None else hips
     bottom = hips if shoulders is not None else positions[:, legs[:, 1]].mean(axis=1)
@@ -93,7 +106,12 @@ def up_direction(positions: np.ndarray, legs: np.ndarray, shoulders: np.ndarray 
     ok = np.isfinite(n) & (n > 1e-6)
     if not ok.any():
         return np.array([0.0, 1.0, 0.0])
-    u = np.median(v[ok] / n[ok, None], axis=0)
+    d = v[ok] / n[ok, None]
+    upright = np.concatenate([(d >= upright_cos).sum(axis=0), (-d >= upright_cos).sum(axis=0)])  # +x +y +z -x -y -z
+    best = int(np.argmax(upright))
+    if upright[best] >= max(1, upright_min_frames):
+        return (1.0 if best < 3 else -1.0) * np.eye(3)[best % 3]
+    u = np.median(d, axis=0)
     u = u / max(float(np.linalg.norm(u)), 1e-12)
     k = int(np.argmax(np.abs(u)))
     if abs(u[k]) >= snap_cos:

@@ -100,7 +100,8 @@ def plant_window(
     ext[np.ix_(unusable, sub_legs.ravel())] = np.nan
     if (~unusable[n_hist:]).sum() < 2:
         return x, weight
-    up = up_direction(ext[~unusable], sub_legs, sub_shoulders, cfg.axis_snap_cos)
+    up = up_direction(ext[~unusable], sub_legs, sub_shoulders, cfg.axis_snap_cos, cfg.upright_cos,
+                      int(round(cfg.upright_min_s * rate_hz)))
     fixed, w, _ = plant_supporting_feet(ext, sub_legs, up, rate_hz, _leg_lengths(legs, bones, bone_lengths), cfg)
     w = w[n_hist:]
     if not w.any():
