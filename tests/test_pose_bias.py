@@ -8,6 +8,7 @@ so, and a model fitted without a person makes that person's output closer to Vic
 """
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 
@@ -207,6 +208,66 @@ def test_a_model_fitted_without_a_person_brings_their_output_closer_to_vicon(eng
                     sums[r, 1, k] += np.nanmean(raw)
         ratio = sums[..., 1] / sums[..., 0]
         assert (ratio[:, 0] < 0.97).all() and (ratio[:, 1] < 0.99).all(), (held, ratio)
+
+
+def test_the_lower_body_is_predicted_from_the_legs_and_trunk_only(sensor_poses):
+    """``predictors``: a leg joint's correction reads the legs' and the trunk's features, never
+    the arms' (their weights are exactly 0), and a bias that depends on the leg's own fold is
+    still recovered."""
+    from streamfix.core.pose_bias import feature_groups
+
+    names = SKELETON.joint_names
+    knee, ankle = (names.index(n) for n in ("LKnee", "LAnkle"))
+    frame_idx = tuple(names.index(n) for n in LAYOUT.frame_joints)
+
+    def knee_bias(pos):  # the knee reads 5 cm forward times how far the shin points forward
+        frames = body_frames(pos, frame_idx)
+        shin = pos[:, ankle] - pos[:, knee]
+        shin_z = np.einsum("tj,tj->t", frames[:, 2], shin / np.linalg.norm(shin, axis=1, keepdims=True))
+        bias = np.zeros_like(pos)
+        bias[:, knee] = (0.05 * shin_z)[:, None] * frames[:, 2]
+        return bias
+
+    train, test = sensor_poses[::2], sensor_poses[1::2]
+    model = _fit([(p, p - knee_bias(p) - _planted_bias(p)) for p in train], ridge=1e-5,
+                 predictors=LAYOUT.predictor_groups())
+    segments = [np.array([[names.index(a), names.index(b)] for a, b in g]) for g in LAYOUT.groups]
+    arms = feature_groups(segments) == 0
+    k = LAYOUT.corrected.index("LKnee")
+    assert not model.weights[arms, 3 * k:3 * k + 3].any()
+    assert model.weights[~arms, 3 * k:3 * k + 3].any()
+    w = LAYOUT.corrected.index("RWrist")  # the upper body keeps every group
+    assert model.weights[arms, 3 * w:3 * w + 3].any() and model.weights[~arms, 3 * w:3 * w + 3].any()
+    truth = np.concatenate([knee_bias(p)[:, knee] for p in test])
+    got = np.concatenate([pose_bias(p, model)[:, knee] for p in test])
+    familiar = familiarity(np.concatenate([pose_features(p, model)[1] for p in test]), model) == 1.0
+    varying = truth - truth.mean(axis=0)
+    assert np.abs((got - got.mean(axis=0)) - varying)[familiar].max() < 0.15 * np.abs(varying).max()
+
+
+def test_standing_legs_stay_where_the_sensor_has_them_while_the_arms_exercise(engine_outputs):
+    """UI-PRMD's shoulder exercises (m07-m10): the sensor tracks the standing legs well. A model
+    fitted without the person must not move them with the arms: with the legs' correction read
+    from the legs and trunk alone, their debiased error grows far less than with every feature."""
+    from streamfix.evaluation.paired import body_region
+    from streamfix.sensor_bias.train import fit_layout_model
+
+    lower = np.array([body_region(n) == "lower" for n in SKELETON.joint_names])
+    held = ("s03", "s05")
+    train = [t for t in engine_outputs if t.subject not in held]
+    models = {"legs": fit_layout_model(train),
+              "all": fit_layout_model(train, dataclasses.replace(LAYOUT, predictors={}))}
+    err = {name: [] for name in ("before", *models)}
+    for t in engine_outputs:
+        if t.subject not in held or t.key.split("_")[1] not in ("m07", "m08", "m09", "m10"):
+            continue
+        ref, before = t.reference.astype(float), t.output.astype(float)
+        outs = {"before": before}
+        outs.update({n: remove_pose_bias(before, t.bones, m, correction_gain(t.rate_hz))[0] for n, m in models.items()})
+        for name, y in outs.items():
+            err[name].append(np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)[:, lower].ravel())
+    mean = {n: float(np.nanmean(np.concatenate(v))) for n, v in err.items()}
+    assert mean["legs"] - mean["before"] < 0.6 * (mean["all"] - mean["before"]), mean
 
 
 def test_train_bias_and_clean_refuse_what_they_cannot_use(tmp_path):

@@ -52,6 +52,7 @@ __all__ = [
     "PoseBiasModel",
     "body_frames",
     "pose_features",
+    "feature_groups",
     "pose_bias",
     "familiarity",
     "remove_pose_bias",
@@ -147,6 +148,33 @@ def pose_features(positions: np.ndarray, model: PoseBiasModel) -> tuple[np.ndarr
     return frames, linear, full
 
 
+def feature_groups(segments: list[np.ndarray]) -> np.ndarray:
+    """(F,) the group index of each column of :func:`_features`' full features (a group's
+    segment directions, then their within-group products)."""
+    sizes = [3 * len(seg) for seg in segments]
+    return np.concatenate([np.full(m + m * (m + 1) // 2, g) for g, m in enumerate(sizes)])
+
+
+def _ridge_by_predictors(f: np.ndarray, e: np.ndarray, ridge: float, groups: np.ndarray,
+                         predictors: tuple[tuple[int, ...] | None, ...] | None, k: int) -> np.ndarray:
+    """Ridge weights (F, 3k) of the centred errors ``e`` (n, 3k) on the centred features ``f``
+    (n, F), each corrected joint on the columns of its ``predictors`` groups only (0 elsewhere)."""
+    n, n_feat = f.shape
+    if predictors is None or all(p is None for p in predictors):
+        return np.linalg.solve(f.T @ f + ridge * n * np.eye(n_feat), f.T @ e)
+    if len(predictors) != k:
+        raise ValueError(f"predictors must name the groups of each of the {k} corrected joints, got {len(predictors)}")
+    weights = np.zeros((n_feat, 3 * k))
+    gram, cross = f.T @ f, f.T @ e
+    for key in {p for p in predictors}:  # one solve per distinct set of groups
+        cols = np.ones(n_feat, dtype=bool) if key is None else np.isin(groups, key)
+        joints = [i for i, p in enumerate(predictors) if p == key]
+        out = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in joints])
+        g = gram[np.ix_(cols, cols)] + ridge * n * np.eye(int(cols.sum()))
+        weights[np.ix_(cols, out)] = np.linalg.solve(g, cross[np.ix_(cols, out)])
+    return weights
+
+
 def _nearest_centre_distance(linear: np.ndarray, centres: np.ndarray) -> np.ndarray:
     d2 = (linear * linear).sum(1)[:, None] - 2.0 * linear @ centres.T + (centres * centres).sum(1)[None, :]
     return np.sqrt(np.maximum(d2.min(axis=1), 0.0))
@@ -240,6 +268,7 @@ def fit_pose_bias(
     seed: int = 0,
     min_frames: int = 20,
     training_subjects: tuple[str, ...] = (),
+    predictors: tuple[tuple[int, ...] | None, ...] | None = None,
 ) -> PoseBiasModel:
     """Fit the model on ``takes``: (sensor output (T, J, 3), reference (T, J, 3)) pairs in metres.
 
@@ -248,7 +277,13 @@ def fit_pose_bias(
     needed joint and every corrected joint's reference is finite are used; a take with
     fewer than ``min_frames`` of them is skipped. ``ridge`` is relative to the number of
     frames (features are unit-scale). ``follow``: for joints not corrected, ``{joint:
-    {corrected joint: weight}}``. Deterministic for a given ``seed``.
+    {corrected joint: weight}}``. ``predictors``: per corrected joint, the indices of the
+    ``groups`` whose features predict its error (None, or a None entry: every group); the
+    other groups' weights for that joint are 0. Why: in the training movements the arms and
+    the legs move together in set ways (arms forward in a squat), so with every feature free
+    a knee's predicted bias followed the arms, and a standing person's legs, which the
+    sensor tracks well, moved with each arm raise (UI-PRMD's shoulder exercises).
+    Deterministic for a given ``seed``.
     """
     names = tuple(joint_names)
     corrected_idx = np.array([names.index(n) for n in corrected])
@@ -276,7 +311,7 @@ def fit_pose_bias(
     e = np.concatenate(errors)
     e -= e.mean(axis=0)  # the average offset, a matter of definition, is not learned
     n, n_feat = f.shape
-    weights = np.linalg.solve(f.T @ f + ridge * n * np.eye(n_feat), f.T @ e)
+    weights = _ridge_by_predictors(f, e, ridge, feature_groups(segments), predictors, len(corrected))
     lin_all = np.concatenate(linears)
     rng = np.random.default_rng(seed)
     sample = lin_all[rng.choice(len(lin_all), size=min(len(lin_all), 20000), replace=False)]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.pose_bias import (CLIP_QUANTILE, FADE_END_FACTOR, FADE_START_QUANTILE, PoseBiasModel)
+from ..core.pose_bias import CLIP_QUANTILE, FADE_END_FACTOR, FADE_START_QUANTILE, PoseBiasModel, feature_groups
 from .train import TRAINING_METHOD, TrainingTake
 
 __all__ = ["write_card", "card_path", "file_sha256"]
@@ -50,6 +50,19 @@ def _score_table(scores: list[dict]) -> list[str]:
     return lines
 
 
+def _predictor_line(model) -> str:
+    """Which segment groups each corrected joint's correction reads (its non-zero weight rows)."""
+    names = model.joint_names
+    col_group = feature_groups([np.array([[names.index(a), names.index(b)] for a, b in g]) for g in model.groups])
+    labels = [" + ".join(f"{a}-{b}" for a, b in g[:1]) + (" ..." if len(g) > 1 else "") for g in model.groups]
+    by: dict[tuple[int, ...], list[str]] = {}
+    for k, joint in enumerate(model.corrected):
+        used = np.abs(model.weights[:, 3 * k:3 * k + 3]).sum(axis=1) > 0
+        by.setdefault(tuple(int(g) for g in np.unique(col_group[used])), []).append(joint)
+    return "; ".join(f"{', '.join(joints)} from group(s) {', '.join(f'{g} ({labels[g]})' for g in groups)}"
+                     for groups, joints in by.items())
+
+
 def write_card(model_path: str | Path, model: PoseBiasModel, takes: list[TrainingTake], scores: list[dict] | None,
                *, data_dir: str | Path | None = None) -> Path:
     """Write ``<model>.md`` for the model file just saved; returns its path."""
@@ -87,6 +100,7 @@ def write_card(model_path: str | Path, model: PoseBiasModel, takes: list[Trainin
         f"(`follow`).",
         f"- Features: {model.weights.shape[0]} (segment directions in the body frame and their products within "
         f"each of {len(model.groups)} groups); ridge {model.ridge:g} per frame.",
+        f"- Predictors: {_predictor_line(model)}.",
         f"- Unfamiliar poses: the correction fades from the {FADE_START_QUANTILE:.0%} quantile of the training "
         f"poses' distance to the nearest of {len(model.centres)} k-means centres ({model.fade_start:.3f}) to "
         f"{FADE_END_FACTOR:g}x their largest ({model.fade_end:.3f}); each joint's correction is clipped at the "
