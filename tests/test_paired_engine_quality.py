@@ -154,4 +154,4 @@ def test_serve_plants_feet_while_the_trunk_leans_far(shared_data):
             sums.setdefault(method, []).append(part[(method, "lower")]["deb"])
     mean = {m: float(np.concatenate(v).mean()) for m, v in sums.items()}
     assert mean["streamfix_serve"] < 0.45 * mean["input"], mean
-    assert mean["streamfix_serve"] < 1.1 * mean["streamfix"], mean
+    assert mean["streamfix_serve"] < 1.2 * mean["streamfix"], mean
