@@ -231,8 +231,7 @@ def test_the_lower_body_is_predicted_from_the_legs_and_trunk_only(sensor_poses):
     train, test = sensor_poses[::2], sensor_poses[1::2]
     model = _fit([(p, p - knee_bias(p) - _planted_bias(p)) for p in train], ridge=1e-5,
                  predictors=LAYOUT.predictor_groups())
-    segments = [np.array([[names.index(a), names.index(b)] for a, b in g]) for g in LAYOUT.groups]
-    arms = feature_groups(segments) == 0
+    arms = feature_groups(names, LAYOUT.groups) == 0
     k = LAYOUT.corrected.index("LKnee")
     assert not model.weights[arms, 3 * k:3 * k + 3].any()
     assert model.weights[~arms, 3 * k:3 * k + 3].any()

@@ -148,28 +148,27 @@ def pose_features(positions: np.ndarray, model: PoseBiasModel) -> tuple[np.ndarr
     return frames, linear, full
 
 
-def feature_groups(segments: list[np.ndarray]) -> np.ndarray:
-    """(F,) the group index of each column of :func:`_features`' full features (a group's
-    segment directions, then their within-group products)."""
-    sizes = [3 * len(seg) for seg in segments]
+def feature_groups(joint_names: tuple[str, ...], groups) -> np.ndarray:
+    """(F,) the index into ``groups`` of each column of the full features (:func:`pose_features`:
+    a group's segment directions, then their within-group products)."""
+    sizes = [3 * len(seg) for seg in _segment_index(tuple(joint_names), groups)]
     return np.concatenate([np.full(m + m * (m + 1) // 2, g) for g, m in enumerate(sizes)])
 
 
 def _ridge_by_predictors(f: np.ndarray, e: np.ndarray, ridge: float, groups: np.ndarray,
                          predictors: tuple[tuple[int, ...] | None, ...] | None, k: int) -> np.ndarray:
     """Ridge weights (F, 3k) of the centred errors ``e`` (n, 3k) on the centred features ``f``
-    (n, F), each corrected joint on the columns of its ``predictors`` groups only (0 elsewhere)."""
-    n, n_feat = f.shape
-    if predictors is None or all(p is None for p in predictors):
-        return np.linalg.solve(f.T @ f + ridge * n * np.eye(n_feat), f.T @ e)
+    (n, F), each corrected joint on the columns of its ``predictors`` groups only (0 elsewhere;
+    None = every column), one solve per distinct set of groups."""
+    predictors = (None,) * k if predictors is None else tuple(predictors)
     if len(predictors) != k:
         raise ValueError(f"predictors must name the groups of each of the {k} corrected joints, got {len(predictors)}")
-    weights = np.zeros((n_feat, 3 * k))
+    n, n_feat = f.shape
     gram, cross = f.T @ f, f.T @ e
-    for key in {p for p in predictors}:  # one solve per distinct set of groups
+    weights = np.zeros((n_feat, 3 * k))
+    for key in set(predictors):
         cols = np.ones(n_feat, dtype=bool) if key is None else np.isin(groups, key)
-        joints = [i for i, p in enumerate(predictors) if p == key]
-        out = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i in joints])
+        out = np.concatenate([[3 * i, 3 * i + 1, 3 * i + 2] for i, p in enumerate(predictors) if p == key])
         g = gram[np.ix_(cols, cols)] + ridge * n * np.eye(int(cols.sum()))
         weights[np.ix_(cols, out)] = np.linalg.solve(g, cross[np.ix_(cols, out)])
     return weights
@@ -311,7 +310,7 @@ def fit_pose_bias(
     e = np.concatenate(errors)
     e -= e.mean(axis=0)  # the average offset, a matter of definition, is not learned
     n, n_feat = f.shape
-    weights = _ridge_by_predictors(f, e, ridge, feature_groups(segments), predictors, len(corrected))
+    weights = _ridge_by_predictors(f, e, ridge, feature_groups(names, groups), predictors, len(corrected))
     lin_all = np.concatenate(linears)
     rng = np.random.default_rng(seed)
     sample = lin_all[rng.choice(len(lin_all), size=min(len(lin_all), 20000), replace=False)]

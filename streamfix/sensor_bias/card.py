@@ -50,14 +50,13 @@ def _score_table(scores: list[dict]) -> list[str]:
     return lines
 
 
-def _predictor_line(model) -> str:
+def _predictor_line(model: PoseBiasModel) -> str:
     """Which segment groups each corrected joint's correction reads (its non-zero weight rows)."""
-    names = model.joint_names
-    col_group = feature_groups([np.array([[names.index(a), names.index(b)] for a, b in g]) for g in model.groups])
-    labels = [" + ".join(f"{a}-{b}" for a, b in g[:1]) + (" ..." if len(g) > 1 else "") for g in model.groups]
+    col_group = feature_groups(model.joint_names, model.groups)
+    labels = [f"{g[0][0]}-{g[0][1]}" + (" ..." if len(g) > 1 else "") for g in model.groups]
     by: dict[tuple[int, ...], list[str]] = {}
     for k, joint in enumerate(model.corrected):
-        used = np.abs(model.weights[:, 3 * k:3 * k + 3]).sum(axis=1) > 0
+        used = model.weights[:, 3 * k:3 * k + 3].any(axis=1)
         by.setdefault(tuple(int(g) for g in np.unique(col_group[used])), []).append(joint)
     return "; ".join(f"{', '.join(joints)} from group(s) {', '.join(f'{g} ({labels[g]})' for g in groups)}"
                      for groups, joints in by.items())
