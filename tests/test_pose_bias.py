@@ -37,6 +37,7 @@ def sensor_poses(shared_data):
 
 
 def _fit(pairs, **kw):
+    kw.setdefault("sensor_direction", LAYOUT.sensor_direction)
     return fit_pose_bias(pairs, skeleton=LAYOUT.skeleton, joint_names=SKELETON.joint_names,
                          frame_joints=LAYOUT.frame_joints, groups=LAYOUT.groups, corrected=LAYOUT.corrected,
                          follow=LAYOUT.follow, **kw)
@@ -76,6 +77,46 @@ def test_a_planted_pose_dependent_bias_is_recovered_and_the_average_offset_is_no
     # a joint with no bias planted gets (almost) none
     elbow = SKELETON.joint_names.index("LElbow")
     assert np.abs(np.concatenate([pose_bias(p, model)[:, elbow] for p in test])).max() < 2e-3
+
+
+def _turned(pos: np.ndarray, degrees: float) -> np.ndarray:
+    """``pos`` turned about the vertical axis through its waist (a person facing away from the camera)."""
+    a = np.radians(degrees)
+    rot = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    centre = pos[:, SKELETON.joint_names.index("Waist")].mean(axis=0)
+    return (pos - centre) @ rot.T + centre
+
+
+def test_a_bias_that_depends_on_where_the_sensor_sees_the_body_from_needs_the_sensor_direction(sensor_poses):
+    """The same arm pose, the body turned: a depth sensor places the wrist by the side it sees.
+    Turning the whole body leaves every limb's direction in the body frame as it was, so only
+    the direction towards the sensor (the origin of camera space) can tell the two apart."""
+    from streamfix.core.pose_bias import towards_sensor
+
+    names = SKELETON.joint_names
+    frame_idx = tuple(names.index(n) for n in LAYOUT.frame_joints)
+    wrist = names.index("RWrist")
+    rng = np.random.default_rng(0)
+    poses = [_turned(p, rng.uniform(-50, 50)) for p in sensor_poses]
+
+    def view_bias(pos):  # the wrist reads 8 cm deeper along the body's z the more the body is turned sideways
+        frames = body_frames(pos, frame_idx)
+        bias = np.zeros_like(pos)
+        bias[:, wrist] = (0.08 * towards_sensor(pos, frames, frame_idx)[:, 0])[:, None] * frames[:, 2]
+        return bias
+
+    train, test = poses[::2], poses[1::2]
+    truth = np.concatenate([view_bias(p)[:, wrist] for p in test])
+    varying = truth - truth.mean(axis=0)
+    residual = {}
+    for flag in (False, True):
+        model = _fit([(p, p - view_bias(p)) for p in train], ridge=1e-5, sensor_direction=flag)
+        assert model.sensor_direction is flag
+        got = np.concatenate([pose_bias(p, model)[:, wrist] for p in test])
+        familiar = familiarity(np.concatenate([pose_features(p, model)[1] for p in test]), model) == 1.0
+        assert familiar.mean() > 0.5
+        residual[flag] = np.abs((got - got.mean(axis=0)) - varying)[familiar].mean() / np.abs(varying).mean()
+    assert residual[True] < 0.3 and residual[False] > 0.8, residual  # measured: 0.15 and 1.08
 
 
 def test_poses_unlike_the_training_ones_are_not_corrected(sensor_poses):
@@ -129,7 +170,23 @@ def test_model_files_round_trip_and_a_bad_one_is_named(tmp_path):
     path = save_pose_bias(model, tmp_path / "m.npz")
     again = load_pose_bias(path)
     assert again.corrected == model.corrected and again.training_subjects == model.training_subjects
+    assert again.sensor_direction is model.sensor_direction is True
     np.testing.assert_array_equal(again.weights, model.weights)
+    # a version-1 file (before the direction towards the sensor existed) reads as one without it
+    import json
+
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: np.array(z[k]) for k in z.files}
+    meta = json.loads(str(arrays.pop("meta")))
+    meta["format"] = "streamfix-pose-bias-1"
+    del meta["sensor_direction"]
+    old = tmp_path / "v1.npz"
+    np.savez(old, meta=np.array(json.dumps(meta)), **arrays)
+    assert load_pose_bias(old).sensor_direction is False
+    meta["format"] = "streamfix-pose-bias-9"
+    np.savez(old, meta=np.array(json.dumps(meta)), **arrays)
+    with pytest.raises(ValueError, match="pose-bias-9"):
+        load_pose_bias(old)
     bad = tmp_path / "bad.npz"
     np.savez(bad, weights=np.zeros(3))
     with pytest.raises(ValueError, match="bad.npz"):
@@ -231,7 +288,7 @@ def test_the_lower_body_is_predicted_from_the_legs_and_trunk_only(sensor_poses):
     train, test = sensor_poses[::2], sensor_poses[1::2]
     model = _fit([(p, p - knee_bias(p) - _planted_bias(p)) for p in train], ridge=1e-5,
                  predictors=LAYOUT.predictor_groups())
-    arms = feature_groups(names, LAYOUT.groups) == 0
+    arms = feature_groups(names, LAYOUT.groups, model.sensor_direction) == 0
     k = LAYOUT.corrected.index("LKnee")
     assert not model.weights[arms, 3 * k:3 * k + 3].any()
     assert model.weights[~arms, 3 * k:3 * k + 3].any()

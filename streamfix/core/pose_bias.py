@@ -16,6 +16,12 @@ The model, per corrected joint ``k`` and frame ``t`` (metres, in the body's fram
   segments (the arms and head, the legs), the products of those coordinates: a quadratic in
   the limbs' directions (the error of a knee depends on how the thigh and the shank fold
   together, not on either alone);
+* with ``sensor_direction``, one more direction in every group: from the trunk (midway
+  between pelvis and neck) towards the sensor, which sits at the origin of the camera-space
+  coordinates a depth sensor reports. A depth sensor sees each limb from one side and puts
+  the joint behind the surface it sees, so where it puts an elbow depends on how the arm is
+  turned towards it, not only on how the arm is bent: with the limbs alone, a body turned
+  away from the camera shares the correction of one facing it;
 * ``W`` by ridge regression of every training frame's error on its features, both with
   their means over all training frames removed: the average offset, how a sensor's joint
   sits on average from a marker-based joint centre, is a matter of definition and is left
@@ -53,6 +59,7 @@ __all__ = [
     "body_frames",
     "pose_features",
     "feature_groups",
+    "towards_sensor",
     "pose_bias",
     "familiarity",
     "remove_pose_bias",
@@ -102,6 +109,7 @@ class PoseBiasModel:
     max_correction_m: np.ndarray  # (K,) clip per corrected joint, metres
     ridge: float = 0.0
     training_subjects: tuple[str, ...] = ()  # the people it was fitted on (an evaluation never scores them with it)
+    sensor_direction: bool = False  # the direction towards the sensor is one more direction in every group
 
 
 def correction_gain(rate_hz: float, time_constant_s: float = CORRECTION_TIME_CONSTANT_S) -> float:
@@ -128,30 +136,51 @@ def _segment_index(names: tuple[str, ...], groups) -> list[np.ndarray]:
     return [np.array([[names.index(a), names.index(b)] for a, b in g]) for g in groups]
 
 
-def _features(positions: np.ndarray, frames: np.ndarray, segments: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(linear (T, L), full (T, F)): segment directions in the body frame, then their within-group products."""
+def towards_sensor(positions: np.ndarray, frames: np.ndarray, frame_idx: tuple[int, int, int, int]) -> np.ndarray:
+    """(T, 3) unit direction from the trunk (midway between pelvis and neck) to the coordinate origin,
+    where a depth sensor's camera-space coordinates put the sensor, in each frame's body frame."""
+    _, _, pelvis, neck = frame_idx
+    return np.einsum("tij,tj->ti", frames, _unit(-0.5 * (positions[:, pelvis] + positions[:, neck])))
+
+
+def _features(positions: np.ndarray, frames: np.ndarray, segments: list[np.ndarray],
+              sensor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(linear (T, L), full (T, F)): segment directions in the body frame, then their within-group products.
+
+    ``sensor`` (T, 3) (:func:`towards_sensor`), if given, is one more direction in every group and
+    ends the linear features (the familiarity of a pose includes where the sensor sees it from)."""
     linear, full = [], []
     for seg in segments:
         d = _unit(positions[:, seg[:, 1]] - positions[:, seg[:, 0]])  # (T, S, 3) world
         f = np.einsum("tij,tsj->tsi", frames, d).reshape(len(positions), -1)  # body-frame coordinates
-        iu = np.triu_indices(f.shape[1])
         linear.append(f)
+        if sensor is not None:
+            f = np.concatenate([f, sensor], axis=1)
+        iu = np.triu_indices(f.shape[1])
         full += [f, f[:, iu[0]] * f[:, iu[1]]]
+    if sensor is not None:
+        linear.append(sensor)
     return np.concatenate(linear, axis=1), np.concatenate(full, axis=1)
+
+
+def _all_features(positions: np.ndarray, names: tuple[str, ...], frame_joints, groups,
+                  sensor_direction: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    frame_idx = tuple(names.index(n) for n in frame_joints)
+    frames = body_frames(positions, frame_idx)
+    sensor = towards_sensor(positions, frames, frame_idx) if sensor_direction else None
+    linear, full = _features(positions, frames, _segment_index(names, groups), sensor)
+    return frames, linear, full
 
 
 def pose_features(positions: np.ndarray, model: PoseBiasModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(body frames (T, 3, 3), linear features (T, L), all features (T, F)) of ``positions`` (T, J, 3) m."""
-    names = model.joint_names
-    frames = body_frames(positions, tuple(names.index(n) for n in model.frame_joints))
-    linear, full = _features(positions, frames, _segment_index(names, model.groups))
-    return frames, linear, full
+    return _all_features(positions, model.joint_names, model.frame_joints, model.groups, model.sensor_direction)
 
 
-def feature_groups(joint_names: tuple[str, ...], groups) -> np.ndarray:
+def feature_groups(joint_names: tuple[str, ...], groups, sensor_direction: bool = False) -> np.ndarray:
     """(F,) the index into ``groups`` of each column of the full features (:func:`pose_features`:
-    a group's segment directions, then their within-group products)."""
-    sizes = [3 * len(seg) for seg in _segment_index(tuple(joint_names), groups)]
+    a group's segment directions (and the direction towards the sensor), then their within-group products)."""
+    sizes = [3 * len(seg) + 3 * bool(sensor_direction) for seg in _segment_index(tuple(joint_names), groups)]
     return np.concatenate([np.full(m + m * (m + 1) // 2, g) for g, m in enumerate(sizes)])
 
 
@@ -268,6 +297,7 @@ def fit_pose_bias(
     min_frames: int = 20,
     training_subjects: tuple[str, ...] = (),
     predictors: tuple[tuple[int, ...] | None, ...] | None = None,
+    sensor_direction: bool = False,
 ) -> PoseBiasModel:
     """Fit the model on ``takes``: (sensor output (T, J, 3), reference (T, J, 3)) pairs in metres.
 
@@ -282,18 +312,16 @@ def fit_pose_bias(
     the legs move together in set ways (arms forward in a squat), so with every feature free
     a knee's predicted bias followed the arms, and a standing person's legs, which the
     sensor tracks well, moved with each arm raise (UI-PRMD's shoulder exercises).
+    ``sensor_direction``: the direction towards the sensor joins every group (module doc).
     Deterministic for a given ``seed``.
     """
     names = tuple(joint_names)
     corrected_idx = np.array([names.index(n) for n in corrected])
-    frame_idx = tuple(names.index(n) for n in frame_joints)
-    segments = _segment_index(names, groups)
     feats, errors, linears = [], [], []  # per take: all features, body-frame errors, linear features
     for output, reference in takes:
         output = np.asarray(output, dtype=np.float64)
         reference = np.asarray(reference, dtype=np.float64)
-        frames = body_frames(output, frame_idx)
-        linear, full = _features(output, frames, segments)
+        frames, linear, full = _all_features(output, names, frame_joints, groups, sensor_direction)
         ok = (np.isfinite(full).all(axis=1) & np.isfinite(frames).all(axis=(1, 2))
               & np.isfinite(reference[:, corrected_idx]).all(axis=(1, 2))
               & np.isfinite(output[:, corrected_idx]).all(axis=(1, 2)))
@@ -310,7 +338,8 @@ def fit_pose_bias(
     e = np.concatenate(errors)
     e -= e.mean(axis=0)  # the average offset, a matter of definition, is not learned
     n, n_feat = f.shape
-    weights = _ridge_by_predictors(f, e, ridge, feature_groups(names, groups), predictors, len(corrected))
+    weights = _ridge_by_predictors(f, e, ridge, feature_groups(names, groups, sensor_direction), predictors,
+                                   len(corrected))
     lin_all = np.concatenate(linears)
     rng = np.random.default_rng(seed)
     sample = lin_all[rng.choice(len(lin_all), size=min(len(lin_all), 20000), replace=False)]
@@ -329,4 +358,5 @@ def fit_pose_bias(
         feature_mean=mean, weights=weights, follow=mix, centres=centres,
         fade_start=float(np.quantile(dist, FADE_START_QUANTILE)), fade_end=float(FADE_END_FACTOR * dist.max()),
         max_correction_m=max_corr, ridge=float(ridge), training_subjects=tuple(training_subjects),
+        sensor_direction=bool(sensor_direction),
     )

@@ -52,7 +52,7 @@ def _score_table(scores: list[dict]) -> list[str]:
 
 def _predictor_line(model: PoseBiasModel) -> str:
     """Which segment groups each corrected joint's correction reads (its non-zero weight rows)."""
-    col_group = feature_groups(model.joint_names, model.groups)
+    col_group = feature_groups(model.joint_names, model.groups, model.sensor_direction)
     labels = [f"{g[0][0]}-{g[0][1]}" + (" ..." if len(g) > 1 else "") for g in model.groups]
     by: dict[tuple[int, ...], list[str]] = {}
     for k, joint in enumerate(model.corrected):
@@ -97,8 +97,9 @@ def write_card(model_path: str | Path, model: PoseBiasModel, takes: list[Trainin
         "## Structure",
         f"- Corrected joints ({len(model.corrected)}): {', '.join(model.corrected)}; the others follow them "
         f"(`follow`).",
-        f"- Features: {model.weights.shape[0]} (segment directions in the body frame and their products within "
-        f"each of {len(model.groups)} groups); ridge {model.ridge:g} per frame.",
+        f"- Features: {model.weights.shape[0]} (segment directions in the body frame"
+        + (", with the direction from the trunk towards the sensor in every group," if model.sensor_direction else "")
+        + f" and their products within each of {len(model.groups)} groups); ridge {model.ridge:g} per frame.",
         f"- Predictors: {_predictor_line(model)}.",
         f"- Unfamiliar poses: the correction fades from the {FADE_START_QUANTILE:.0%} quantile of the training "
         f"poses' distance to the nearest of {len(model.centres)} k-means centres ({model.fade_start:.3f}) to "

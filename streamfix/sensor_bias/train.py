@@ -89,7 +89,7 @@ def fit_layout_model(takes: list[TrainingTake], layout: BiasLayout | None = None
         [(t.output, t.reference) for t in used], training_subjects=tuple(sorted({t.subject for t in used})),
         skeleton=layout.skeleton, joint_names=takes[0].joint_names, frame_joints=layout.frame_joints,
         groups=layout.groups, corrected=layout.corrected, follow=layout.follow, seed=seed,
-        predictors=layout.predictor_groups(),
+        predictors=layout.predictor_groups(), sensor_direction=layout.sensor_direction,
     )
 
 
