@@ -96,8 +96,6 @@ def test_a_bias_that_depends_on_where_the_sensor_sees_the_body_from_needs_the_se
     names = SKELETON.joint_names
     frame_idx = tuple(names.index(n) for n in LAYOUT.frame_joints)
     wrist = names.index("RWrist")
-    rng = np.random.default_rng(0)
-    poses = [_turned(p, rng.uniform(-50, 50)) for p in sensor_poses]
 
     def view_bias(pos):  # the wrist reads 8 cm deeper along the body's z the more the body is turned sideways
         frames = body_frames(pos, frame_idx)
@@ -105,7 +103,8 @@ def test_a_bias_that_depends_on_where_the_sensor_sees_the_body_from_needs_the_se
         bias[:, wrist] = (0.08 * towards_sensor(pos, frames, frame_idx)[:, 0])[:, None] * frames[:, 2]
         return bias
 
-    train, test = poses[::2], poses[1::2]
+    train = [_turned(p, a) for p in sensor_poses[::2] for a in (-40, -20, 0, 20, 40)]
+    test = [_turned(p, a) for p in sensor_poses[1::2] for a in (-30, -10, 10, 30)]
     truth = np.concatenate([view_bias(p)[:, wrist] for p in test])
     varying = truth - truth.mean(axis=0)
     residual = {}
@@ -116,7 +115,7 @@ def test_a_bias_that_depends_on_where_the_sensor_sees_the_body_from_needs_the_se
         familiar = familiarity(np.concatenate([pose_features(p, model)[1] for p in test]), model) == 1.0
         assert familiar.mean() > 0.5
         residual[flag] = np.abs((got - got.mean(axis=0)) - varying)[familiar].mean() / np.abs(varying).mean()
-    assert residual[True] < 0.3 and residual[False] > 0.8, residual  # measured: 0.15 and 1.08
+    assert residual[True] < 0.3 and residual[False] > 0.6, residual  # measured: 0.13 and 0.74
 
 
 def test_poses_unlike_the_training_ones_are_not_corrected(sensor_poses):
@@ -265,6 +264,36 @@ def test_a_model_fitted_without_a_person_brings_their_output_closer_to_vicon(eng
                     sums[r, 1, k] += np.nanmean(raw)
         ratio = sums[..., 1] / sums[..., 0]
         assert (ratio[:, 0] < 0.97).all() and (ratio[:, 1] < 0.99).all(), (held, ratio)
+
+
+def test_coordinates_that_are_not_the_sensor_s_camera_space_get_little_or_no_correction(engine_outputs):
+    """The direction towards the sensor assumes camera space (the sensor at the origin). With the
+    origin moved behind a held-out person the body is seen from a side the training never had,
+    and the correction fades (at the familiarity's weight 1 it raised the upper body's error by
+    a quarter); with the origin on the body (a take re-centred on the person) nothing is corrected."""
+    from streamfix.core.pose_bias import MIN_SENSOR_DISTANCE_M
+    from streamfix.evaluation.paired import body_region
+    from streamfix.sensor_bias.train import fit_layout_model
+
+    upper = np.array([body_region(n) == "upper" for n in SKELETON.joint_names])
+    model = fit_layout_model([t for t in engine_outputs if t.subject != "s03"])
+    behind = np.array([0.0, 0.0, 5.0])  # UI-PRMD's camera looks along -z: the origin ends up behind the body
+    sums = np.zeros(3)
+    for t in [t for t in engine_outputs if t.subject == "s03"][::4]:
+        ref, before = t.reference.astype(float), t.output.astype(float)
+        moved, _ = remove_pose_bias(before + behind, t.bones, model, correction_gain(t.rate_hz))
+        here, _ = remove_pose_bias(before, t.bones, model, correction_gain(t.rate_hz))
+        for k, y in enumerate((before, moved - behind, here)):
+            sums[k] += np.nanmean(np.linalg.norm(remove_mean_offset(y, ref) - ref, axis=2)[:, upper])
+    assert sums[2] < 0.95 * sums[0]  # in camera space it corrects
+    assert sums[1] < 1.05 * sums[0], sums  # seen from behind: about as the sensor had it
+    pos = engine_outputs[0].output.astype(float)
+    centred = pos - pos[0, SKELETON.joint_names.index("Waist")]
+    trunk = 0.5 * np.linalg.norm(centred[:, SKELETON.joint_names.index("Waist")]
+                                 + centred[:, SKELETON.joint_names.index("Neck")], axis=1)
+    near = trunk < MIN_SENSOR_DISTANCE_M
+    assert near.any()
+    assert not pose_bias(centred, model)[near].any()
 
 
 def test_the_lower_body_is_predicted_from_the_legs_and_trunk_only(sensor_poses):
