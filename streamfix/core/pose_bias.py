@@ -20,8 +20,9 @@ The model, per corrected joint ``k`` and frame ``t`` (metres, in the body's fram
   between pelvis and neck) towards the sensor, which sits at the origin of the camera-space
   coordinates a depth sensor reports. A depth sensor sees each limb from one side and puts
   the joint behind the surface it sees, so where it puts an elbow depends on how the arm is
-  turned towards it, not only on how the arm is bent: with the limbs alone, a body turned
-  away from the camera shares the correction of one facing it;
+  turned towards it, not only on how the arm is bent. The limbs' directions alone cannot
+  see that: the body frame turns and leans with the trunk, so a body turned or bent towards
+  the camera shares the correction of one standing square to it;
 * ``W`` by ridge regression of every training frame's error on its features, both with
   their means over all training frames removed: the average offset, how a sensor's joint
   sits on average from a marker-based joint centre, is a matter of definition and is left
@@ -40,7 +41,11 @@ Safety, for poses the training never saw: the correction fades to zero with the 
 of ``f``'s linear part to the nearest of ``centres`` (k-means of the training poses),
 from the training distances' ``FADE_START_QUANTILE`` to ``FADE_END_FACTOR`` times their
 largest, and each joint's correction is clipped to the largest the training poses gave.
-A frame missing a joint the features need is not corrected.
+A frame missing a joint the features need is not corrected. The direction towards the
+sensor assumes camera space: it weighs ``SENSOR_FAMILIARITY_WEIGHT`` times a limb direction
+in that distance, so a body seen from a side the training never had (coordinates whose
+origin is not the sensor) fades, and a trunk within ``MIN_SENSOR_DISTANCE_M`` of the origin
+(a take re-centred on the body) is not corrected at all.
 
 Arrays in, arrays out: fitting (:func:`fit_pose_bias`) and applying
 (:func:`remove_pose_bias`) are pure; files are :mod:`streamfix.io.pose_bias_model`.
