@@ -42,7 +42,8 @@ def add_sensor_bias_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor-bias", default="auto", metavar="auto|off|PATH",
                         help="remove the learned pose-dependent bias of the sensor's joints from the clean output: "
                              "'auto' (default: the model shipped for the skeleton, today Kinect v1 in UI-PRMD's "
-                             "layout; none for other skeletons), 'off', or a model file from `streamfix train-bias`")
+                             "layout; none for other skeletons; it expects the sensor's camera-space coordinates), "
+                             "'off', or a model file from `streamfix train-bias`")
 
 
 def check_sensor_bias_option(command: str, value: str) -> bool:
