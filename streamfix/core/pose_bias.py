@@ -159,8 +159,10 @@ def towards_sensor(positions: np.ndarray, frames: np.ndarray, frame_idx: tuple[i
     not its camera space (a take re-centred on the body, say) and the direction means nothing."""
     _, _, pelvis, neck = frame_idx
     to_origin = -0.5 * (positions[:, pelvis] + positions[:, neck])
-    far = np.linalg.norm(to_origin, axis=1) >= MIN_SENSOR_DISTANCE_M
-    return np.where(far[:, None], np.einsum("tij,tj->ti", frames, _unit(to_origin)), np.nan)
+    dist = np.linalg.norm(to_origin, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        unit = np.where(dist >= MIN_SENSOR_DISTANCE_M, to_origin / dist, np.nan)
+    return np.einsum("tij,tj->ti", frames, unit)
 
 
 def _features(positions: np.ndarray, frames: np.ndarray, segments: list[np.ndarray],
