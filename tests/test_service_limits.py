@@ -58,6 +58,8 @@ def test_skeleton_scope_isolates_streams_and_protects_builtins():
 
 
 def test_backlog_sheds_the_oldest_by_age_and_count_and_block_never_sheds():
+    """Count bound: the oldest go. Age bound: all but each stream's newest frame go, so a
+    burst that ends while the loop is busy still reaches live (with its shed count)."""
     b = Backlog(max_frames=5, max_age_s=0.05)
     now = time.monotonic_ns()
     for k in range(8):
@@ -65,9 +67,15 @@ def test_backlog_sheds_the_oldest_by_age_and_count_and_block_never_sheds():
     b.put([b"sf/meta/a", b"m"], now)
     got, shed = b.take(0, 100)
     assert shed == {"a": 3} and [p[0][1] for p in got] == [b"m", b"\x03", b"\x04", b"\x05", b"\x06", b"\x07"]
-    b.put([b"sf/raw/b", b"x"], time.monotonic_ns() - 10**9)  # waited a second already
+    stale = time.monotonic_ns() - 10**9  # waited a second already
+    for k in range(3):
+        b.put([b"sf/raw/b", bytes([k])], stale)
+    b.put([b"sf/raw/c", b"c"], stale)
+    b.put([b"sf/raw/d", b"d"], time.monotonic_ns())
     got, shed = b.take(0, 100)
-    assert got == [] and shed == {"b": 1}
+    # the stale frames go, except each stream's newest: live jumps to the latest pose sent
+    assert shed == {"b": 2} and [p[0][1] for p in got] == [b"\x02", b"c", b"d"]
+    assert b.depth()[0] == 0 and not b._waiting
     blocking = Backlog(max_frames=1000, max_age_s=0.05, policy="block")
     old = time.monotonic_ns() - 10**10
     for k in range(50):

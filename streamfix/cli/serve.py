@@ -113,7 +113,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="input messages waiting before the oldest are shed / the producer blocks "
                      "(default %(default)s)")
     lim.add_argument("--backlog-seconds", type=float, default=0.05, metavar="S",
-                     help="shed: input older than S seconds is dropped (default %(default)s)")
+                     help="shed: input older than S seconds is dropped, except each stream's newest frame "
+                     "(default %(default)s)")
     lim.add_argument("--drain-timeout", type=float, default=2.0, metavar="S",
                      help="on SIGTERM, handle received input for at most S seconds; the rest is counted "
                      "as shed (default %(default)s)")

@@ -39,7 +39,8 @@ Sequence numbers: the service renumbers each stream's output per
 :mod:`.numbering` (``epoch`` and ``seq`` on the wire; ``seq`` can never overflow).
 
 Overload: the source keeps what it received in a bounded backlog
-(:class:`~.sources.Backlog`) and sheds the oldest frames beyond it; shed frames are
+(:class:`~.sources.Backlog`) and sheds the oldest frames beyond it, never a stream's
+newest (so a burst that ends while the loop is busy still shows its last pose); shed frames are
 counted (``streamfix_shed_frames_total{reason}``) and announced on the wire as
 ``dropped`` on the stream's next ``live`` frame. ``streamfix_input_backlog_frames`` /
 ``_seconds`` show the backlog.
@@ -503,8 +504,10 @@ class Service:
 
     def _handle_frame(self, item: Frame) -> None:
         frame = item.frame
-        if self._max_age_ns is not None and time.monotonic_ns() - item.arrival_ns > self._max_age_ns:
-            # it waited beyond the backlog bound while earlier frames were handled: shed it too
+        if (self._max_age_ns is not None and not item.newest
+                and time.monotonic_ns() - item.arrival_ns > self._max_age_ns):
+            # it waited beyond the backlog bound while earlier frames were handled, and a later
+            # frame of its stream is at hand: shed it too
             self._shed(Shed(frame.stream_id, 1))
             return
         try:

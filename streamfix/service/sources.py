@@ -85,11 +85,14 @@ __all__ = [
 
 @dataclass
 class Frame:
-    """A raw frame, with its arrival time on the monotonic clock (ns)."""
+    """A raw frame, with its arrival time on the monotonic clock (ns). ``newest``: no later
+    frame of its stream waited in the backlog when it was taken, so it is not shed for its
+    age (live shows the latest pose a stream sent)."""
 
     frame: SkeletonFrame
     arrival_ns: int
     rate_hz: float | None = None
+    newest: bool = True
 
 
 @dataclass
@@ -156,8 +159,12 @@ class Backlog:
     A receiver thread appends every message with its **arrival time** (monotonic ns, as
     soon as it left the socket), so latencies are measured from arrival even while the
     loop is busy. Policy ``shed`` (the default, for live sensors): when more than
-    ``max_frames`` frames wait, or the oldest has waited longer than ``max_age_s``, the
-    oldest frames are dropped and counted per stream, so the live output stays current.
+    ``max_frames`` frames wait, the oldest are dropped; frames that waited longer than
+    ``max_age_s`` are dropped too, except the newest waiting frame of each stream, so the
+    live output stays current: it jumps to the latest pose a stream sent rather than to
+    nothing, and the frame carries the count of those shed before it (a burst that ends
+    while the loop is busy would otherwise be shed whole and never announced). Drops are
+    counted per stream.
     Policy ``block`` (for bulk producers that must lose nothing, e.g. ``replay --rate
     0``): the receiver stops taking messages at ``max_frames``, ZeroMQ's queues fill and
     the producer's PUSH blocks (back-pressure); nothing is shed and latency grows
@@ -175,6 +182,7 @@ class Backlog:
         self.max_frames = int(max_frames)
         self.max_age_ns = int(max_age_s * 1e9) if policy == "shed" else None
         self._items: deque = deque()  # (parts, arrival_ns, stream or None, is_meta)
+        self._waiting: Counter = Counter()  # stream -> its frames in _items
         self._meta: deque = deque()
         self._cond = threading.Condition()
         self._closed = False
@@ -205,6 +213,7 @@ class Backlog:
                 self._meta.append((parts, arrival_ns, stream, True))
             else:
                 self._items.append((parts, arrival_ns, stream, False))
+                self._waiting[stream] += 1
                 self._trim(arrival_ns)
             self._cond.notify_all()
 
@@ -221,16 +230,38 @@ class Backlog:
             self._cond.notify_all()
 
     def _trim(self, now_ns: int) -> None:
+        """Shed beyond the count bound (oldest first), then what is older than the age
+        bound except each stream's newest waiting frame (kept in arrival order)."""
         if self.max_age_ns is None:
             return
         items = self._items
-        while items and (len(items) > self.max_frames or now_ns - items[0][1] > self.max_age_ns):
-            _, _, stream, _ = items.popleft()
-            self.shed[stream] += 1
-            self.shed_total += 1
+        while len(items) > self.max_frames:
+            self._shed_entry(items.popleft())
+        newest_kept = []
+        while items and now_ns - items[0][1] > self.max_age_ns:
+            entry = items.popleft()
+            if self._waiting[entry[2]] == 1:
+                newest_kept.append(entry)
+            else:
+                self._shed_entry(entry)
+        items.extendleft(reversed(newest_kept))
+
+    def _left(self, stream: str | None) -> None:
+        """One frame of ``stream`` left the backlog (a name is forgotten at zero: names are untrusted)."""
+        self._waiting[stream] -= 1
+        if not self._waiting[stream]:
+            del self._waiting[stream]
+
+    def _shed_entry(self, entry: tuple) -> None:
+        self._left(entry[2])
+        self.shed[entry[2]] += 1
+        self.shed_total += 1
 
     def take(self, timeout_s: float, max_n: int) -> tuple[list, dict]:
-        """Up to ``max_n`` messages (skeleton messages first) and the shed counts since the last call."""
+        """Up to ``max_n`` messages (skeleton messages first) and the shed counts since the last call.
+
+        Each message is ``(parts, arrival_ns, stream, is_meta, newest)``; ``newest``: no later
+        frame of its stream is in this batch or still waits."""
         with self._cond:
             if not self._items and not self._meta and timeout_s > 0 and not self._woken:
                 self._cond.wait(timeout_s)
@@ -241,6 +272,13 @@ class Backlog:
                 out.append(self._meta.popleft())
             while self._items and len(out) < max_n:
                 out.append(self._items.popleft())
+                self._left(out[-1][2])
+            later = set(self._waiting)
+            for k in range(len(out) - 1, -1, -1):
+                parts, arrival, stream, meta = out[k]
+                out[k] = (parts, arrival, stream, meta, stream not in later)
+                if not meta:
+                    later.add(stream)
             shed, self.shed = dict(self.shed), Counter()
             self._cond.notify_all()  # a blocked receiver may go on
         return out, shed
@@ -252,6 +290,7 @@ class Backlog:
                 self.shed[stream] += 1
             self.shed_total += len(self._items)
             self._items.clear()
+            self._waiting.clear()
             self._meta.clear()
             shed, self.shed = dict(self.shed), Counter()
         return shed
@@ -339,7 +378,7 @@ class ZmqSource:
             except zmq.ZMQError:  # socket closed under us: the service is stopping
                 return
 
-    def _decode(self, parts: list[bytes], arrival_ns: int) -> Item:
+    def _decode(self, parts: list[bytes], arrival_ns: int, newest: bool = True) -> Item:
         wire = self._wire
         if not parts or len(parts) > 2:
             return Rejected("garbage", f"message has {len(parts)} ZeroMQ frames, expected [topic, payload] or [payload]")
@@ -352,7 +391,7 @@ class ZmqSource:
         except wire.WireError as exc:
             return Rejected(wire_reason(exc), str(exc))
         if isinstance(msg, SkeletonFrame):
-            return Frame(msg, arrival_ns)
+            return Frame(msg, arrival_ns, newest=newest)
         # a skeleton message: learn the layout (for this stream only) so its frames decode
         try:
             self.scope.announce(msg.stream_id, msg.skeleton, msg.rate_hz)
@@ -363,7 +402,7 @@ class ZmqSource:
     def poll(self, timeout_s: float) -> list[Item]:
         got, shed = self.backlog.take(max(0.0, timeout_s), self._max_batch)
         items: list[Item] = [Shed(stream, n) for stream, n in shed.items()]
-        items.extend(self._decode(parts, arrival) for parts, arrival, _, _ in got)
+        items.extend(self._decode(parts, arrival, newest) for parts, arrival, _, _, newest in got)
         return items
 
     def pending(self) -> tuple[int, float]:
