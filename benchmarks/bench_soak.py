@@ -213,7 +213,7 @@ def run(args: argparse.Namespace) -> dict:
         "service_frames_in": frames_in, "service_shed": shed, "service_limit_hits": limits,
         "service_malformed": malformed, "publish_drops": pub_drops,
         "uncounted_service": sent - service_accounted,
-        "unannounced_on_wire": sent - wire_accounted,  # shed after the stream's last live frame
+        "unannounced_on_wire": sent - wire_accounted,  # shed at shutdown (the backlog keeps a stream's newest frame)
         "seq_errors": checker.seq_errors, "epochs": {k: len(v) for k, v in checker.epochs.items()},
         "live_p50_ms": float(np.percentile(lat, 50) * 1e3) if lat.size else None,
         "live_p99_ms": float(np.percentile(lat, 99) * 1e3) if lat.size else None,

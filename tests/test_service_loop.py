@@ -233,3 +233,27 @@ def test_input_that_keeps_coming_starves_no_engine_of_its_polls(kinect):
     assert svc.run(max_turn_s=0.01) == 0
     # 79 frames of 2 ms in turns of ~10 ms: ~16 turns with input waiting, each polling one engine
     assert min(log.count(name) for name in ("a", "b", "c")) >= 3, log
+
+
+def test_the_first_engine_imports_nothing_the_service_did_not_load_before_listening():
+    """``engine_factory("streamfix")`` (called before the service listens) imports what an
+    engine needs; building the first stream's engine on its first frame then imports no
+    module (an import there held the input loop for 20-60 ms, long enough to shed the frames
+    behind it). In a fresh interpreter, so other tests' imports cannot hide one."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from streamfix.service.engines import EngineOptions, engine_factory\n"
+        "from streamfix.skeletons import get_skeleton\n"
+        "make = engine_factory('streamfix', EngineOptions())\n"
+        "skeleton = get_skeleton('kinect_v2')\n"
+        "before = set(sys.modules)\n"
+        "engine = make(skeleton, 30.0)\n"
+        "print(sorted(set(sys.modules) - before))\n"
+        "engine.close()\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout

@@ -161,7 +161,7 @@ def prepare_streamfix_engine(solver_process: bool = False) -> None:
     """
     from ..core import kernels
     from ..prior.runtime import load_default_prior
-    from ..streaming.window_solvers import default_window_solver
+    from ..streaming.window_solvers import default_window_solver, import_solver_modules
 
     child_ready = None
     if solver_process:
@@ -169,6 +169,7 @@ def prepare_streamfix_engine(solver_process: bool = False) -> None:
 
         child_ready = prepare_solver_process()
     default_window_solver()  # imports the engine's solver stack (scipy, pywt: tens of ms)
+    import_solver_modules()  # and what each engine's constructor imports (the prior's initialiser, PCA)
     kernels.warm_up()
     try:
         load_default_prior()  # the --prior the command chose, else the shipped one; cached per process
