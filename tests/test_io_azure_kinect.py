@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from streamfix.io import MotionFileError, read_motion
-from streamfix.service.sources import Frame, open_source
+from streamfix.service.items import Frame
+from streamfix.service.sources import open_source
 from streamfix.skeletons import AZURE_KINECT, KINECT_V2
 
 from test_e2e_harness import PROJECT_ROOT, child_env

@@ -23,7 +23,8 @@ import pytest
 from streamfix.io.depthai_device import parse_depthai_spec
 from streamfix.io.depthai_keypoints import detections_to_frame
 from streamfix.service.engines import EngineOptions, engine_factory
-from streamfix.service.sources import DepthaiSource, Frame, Rejected
+from streamfix.service.items import Frame, Rejected
+from streamfix.service.sources import DepthaiSource
 from streamfix.skeletons import BLAZEPOSE_33, COCO_17
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "depthai_coco17_wavehand.npz"

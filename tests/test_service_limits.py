@@ -11,7 +11,7 @@ from streamfix.frames import BodyFrame, SkeletonFrame
 from streamfix.service.limits import LIMITS, Limits
 from streamfix.service.numbering import SEQ_LIMIT, Numbering
 from streamfix.service.scope import SkeletonScope
-from streamfix.service.sources import Backlog
+from streamfix.service.backlog import Backlog
 from streamfix.service.validate import LimitHit, check_rate, limit_coordinates
 from streamfix.skeletons import KINECT_V2, Skeleton
 
@@ -145,7 +145,7 @@ def test_bodies_are_admitted_within_the_joint_rate_budget():
 
     from streamfix.service.engines import EngineOptions, engine_factory
     from streamfix.service.server import Service
-    from streamfix.service.sources import Announce, Frame
+    from streamfix.service.items import Announce, Frame
 
     big = Skeleton("grid400", tuple(f"j{i}" for i in range(400)), ())
     items = [Announce("g", big, 200.0)]  # 400 joints x 200 Hz = 80,000 joint-samples/s per body

@@ -11,7 +11,7 @@ from streamfix.frames import BodyFrame, SkeletonFrame
 from streamfix.io import read_motion
 from streamfix.service.engines import EngineOptions, engine_factory, parse_lookahead
 from streamfix.service.server import Service
-from streamfix.service.sources import Frame, Rejected
+from streamfix.service.items import Frame, Rejected
 
 
 class ScriptedSource:

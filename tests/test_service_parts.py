@@ -11,7 +11,8 @@ from streamfix.frames import BodyFrame, SkeletonFrame
 from streamfix.io.kinect_csv import read_kinect_csv
 from streamfix.service.metrics import Registry, parse_prometheus_text
 from streamfix.service.playback import Pacer, motion_frames
-from streamfix.service.sources import default_replay_file, wire_reason
+from streamfix.service.items import wire_reason
+from streamfix.service.sources import default_replay_file
 from streamfix.service.textin import parse_line
 from streamfix.service.validate import BadInput, validate_frame
 from streamfix.transport.wire import WireError

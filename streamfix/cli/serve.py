@@ -179,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
     from ..service.limits import Limits
     from ..service.publisher import ServicePublisher
     from ..service.server import Service
-    from ..service.sources import Backlog, default_replay_file, open_source
+    from ..service.backlog import Backlog
+    from ..service.sources import default_replay_file, open_source
     from ..transport.curve import CurveServer, is_loopback_endpoint
 
     spec = args.source

@@ -39,7 +39,7 @@ Sequence numbers: the service renumbers each stream's output per
 :mod:`.numbering` (``epoch`` and ``seq`` on the wire; ``seq`` can never overflow).
 
 Overload: the source keeps what it received in a bounded backlog
-(:class:`~.sources.Backlog`) and sheds the oldest frames beyond it, never a stream's
+(:class:`~.backlog.Backlog`) and sheds the oldest frames beyond it, never a stream's
 newest (so a burst that ends while the loop is busy still shows its last pose); shed frames are
 counted (``streamfix_shed_frames_total{reason}``) and announced on the wire as
 ``dropped`` on the stream's next ``live`` frame. ``streamfix_input_backlog_frames`` /
@@ -80,7 +80,7 @@ from .metrics import MetricsServer, Registry
 from .numbering import Numbering
 from .publisher import ServicePublisher
 from .scope import SkeletonScope
-from .sources import Announce, Frame, Limited, Rejected, Shed
+from .items import Announce, Frame, Limited, Rejected, Shed
 from .validate import REASONS, BadInput, LimitHit, check_rate, limit_coordinates, short, validate_frame
 
 __all__ = ["Service", "ServiceMetrics"]
