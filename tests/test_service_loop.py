@@ -235,25 +235,61 @@ def test_input_that_keeps_coming_starves_no_engine_of_its_polls(kinect):
     assert min(log.count(name) for name in ("a", "b", "c")) >= 3, log
 
 
-def test_the_first_engine_imports_nothing_the_service_did_not_load_before_listening():
+def test_the_first_engines_import_and_read_nothing_the_service_did_not_load_before_listening():
     """``engine_factory("streamfix")`` (called before the service listens) imports what an
-    engine needs; building the first stream's engine on its first frame then imports no
-    module (an import there held the input loop for 20-60 ms, long enough to shed the frames
-    behind it). In a fresh interpreter, so other tests' imports cannot hide one."""
+    engine needs and reads the shipped sensor-bias models; building the first streams'
+    engines on their first frames then imports no module and reads no model file (an import
+    there held the input loop for 20-60 ms, a model file 8-18 ms: long enough to shed the
+    frames behind them). In a fresh interpreter, so other tests' imports cannot hide one."""
     import subprocess
     import sys
 
     code = (
         "import sys\n"
         "from streamfix.service.engines import EngineOptions, engine_factory\n"
+        "import streamfix.sensor_bias.shipped as shipped\n"
         "from streamfix.skeletons import get_skeleton\n"
         "make = engine_factory('streamfix', EngineOptions())\n"
-        "skeleton = get_skeleton('kinect_v2')\n"
+        "skeletons = [get_skeleton(name) for name in ('kinect_v2', 'kinect_v1_uiprmd')]\n"
+        "reads, read = [], shipped.load_pose_bias\n"
+        "shipped.load_pose_bias = lambda path: reads.append(path) or read(path)\n"
         "before = set(sys.modules)\n"
-        "engine = make(skeleton, 30.0)\n"
-        "print(sorted(set(sys.modules) - before))\n"
-        "engine.close()\n"
+        "engines = [make(skeleton, 30.0) for skeleton in skeletons]\n"
+        "print(sorted(set(sys.modules) - before), len(reads))\n"
+        "for engine in engines:\n"
+        "    engine.close()\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
+    assert out.stdout.strip().splitlines()[-1] == "[] 0", out.stdout
+
+
+def test_a_sensor_bias_model_file_is_read_once_for_every_stream(monkeypatch):
+    """``--sensor-bias PATH``: the factory reads the file once and every stream's engine
+    corrects with that model, instead of each new stream reading it on its first frame."""
+    import streamfix.io.pose_bias_model as files
+    import streamfix.sensor_bias.shipped as shipped
+    from streamfix.core.pose_bias import PoseBiasModel
+    from streamfix.sensor_bias.shipped import MODELS_DIR
+    from streamfix.skeletons import get_skeleton
+
+    reads = []
+    real = files.load_pose_bias
+
+    def counted(path):
+        reads.append(path)
+        return real(path)
+
+    monkeypatch.setattr(files, "load_pose_bias", counted)
+    monkeypatch.setattr(shipped, "load_pose_bias", counted)  # what an engine would call
+    make = engine_factory("streamfix", EngineOptions(sensor_bias=str(MODELS_DIR / "kinect_v1_uiprmd.npz")))
+    assert len(reads) == 1
+    skeleton = get_skeleton("kinect_v1_uiprmd")
+    engines = [make(skeleton, 30.0) for _ in range(3)]
+    try:
+        assert len(reads) == 1
+        assert all(isinstance(e.cfg.sensor_bias, PoseBiasModel) and e.cfg.sensor_bias is engines[0].cfg.sensor_bias
+                   for e in engines)
+    finally:
+        for e in engines:
+            e.close()

@@ -15,7 +15,7 @@ from ..core.pose_bias import PoseBiasModel
 from ..io.pose_bias_model import load_pose_bias
 from ..skeletons import Skeleton
 
-__all__ = ["MODELS_DIR", "shipped_model", "resolve_sensor_bias", "is_model_path", "OFF"]
+__all__ = ["MODELS_DIR", "shipped_model", "preload_shipped_models", "resolve_sensor_bias", "is_model_path", "OFF"]
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 OFF = ("off", "none", "")
@@ -31,6 +31,14 @@ def shipped_model(skeleton_name: str) -> PoseBiasModel | None:
     """The model shipped for ``skeleton_name`` (``models/<name>.npz``), None if there is none."""
     path = MODELS_DIR / f"{skeleton_name}.npz"
     return load_pose_bias(path) if path.is_file() else None
+
+
+def preload_shipped_models() -> None:
+    """Read every shipped model into :func:`shipped_model`'s cache now: ``serve`` calls this
+    before it listens, so the first stream of a layout with a model does not read and parse
+    its file on the input loop (8-18 ms here)."""
+    for path in sorted(MODELS_DIR.glob("*.npz")):
+        shipped_model(path.stem)
 
 
 def resolve_sensor_bias(setting: Any, skeleton: Skeleton) -> PoseBiasModel | None:

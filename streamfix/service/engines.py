@@ -16,8 +16,8 @@ optionally ``poll() -> [(kind, frame)]`` (outputs finished in the background) an
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, replace
+from typing import Any, Callable
 
 import numpy as np
 
@@ -37,7 +37,7 @@ class EngineOptions:
     lookahead_frames: int | None = None  # or frames (wins if given)
     threaded: bool = True           # solve windows off the input thread
     solver_process: bool = False    # ... in a child process per engine (threaded only; solver_process.py)
-    sensor_bias: str = "auto"       # learned sensor bias removed from clean: auto | off | a model file
+    sensor_bias: Any = "auto"       # learned sensor bias removed from clean: auto | off | a model file (or a loaded model)
 
 
 class PassthroughEngine:
@@ -144,9 +144,25 @@ def engine_factory(name: str, options: EngineOptions) -> Callable[[Skeleton, flo
     except KeyError:
         raise ValueError(f"unknown engine {name!r}; expected one of {', '.join(ENGINES)}") from None
     if name == "streamfix":
+        options = _sensor_bias_loaded(options)
         _engine_config(30.0, options)  # bad --window/--hop/--lookahead fail now, not on the first frame
         prepare_streamfix_engine(solver_process=options.solver_process)
     return lambda skeleton, rate_hz: make(skeleton, rate_hz, options)
+
+
+def _sensor_bias_loaded(options: EngineOptions) -> EngineOptions:
+    """``options`` with its sensor-bias model read now, once: a model file becomes the loaded
+    model every stream's engine shares, and with ``auto`` the shipped models are cached.
+    Otherwise each new stream's engine read its file on its first frame, on the input loop."""
+    from ..sensor_bias.shipped import is_model_path, preload_shipped_models
+
+    if is_model_path(options.sensor_bias):
+        from ..io.pose_bias_model import load_pose_bias
+
+        return replace(options, sensor_bias=load_pose_bias(options.sensor_bias))
+    if isinstance(options.sensor_bias, str) and options.sensor_bias.lower() == "auto":
+        preload_shipped_models()
+    return options
 
 
 def prepare_streamfix_engine(solver_process: bool = False) -> None:
