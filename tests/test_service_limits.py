@@ -11,7 +11,7 @@ from streamfix.frames import BodyFrame, SkeletonFrame
 from streamfix.service.limits import LIMITS, Limits
 from streamfix.service.numbering import SEQ_LIMIT, Numbering
 from streamfix.service.scope import SkeletonScope
-from streamfix.service.backlog import Backlog
+from streamfix.service.backlog import MAX_KEPT_STREAMS, Backlog
 from streamfix.service.validate import LimitHit, check_rate, limit_coordinates
 from streamfix.skeletons import KINECT_V2, Skeleton
 
@@ -76,6 +76,13 @@ def test_backlog_sheds_the_oldest_by_age_and_count_and_block_never_sheds():
     # the stale frames go, except each stream's newest: live jumps to the latest pose sent
     assert shed == {"b": 2} and [p[0][1] for p in got] == [b"\x02", b"c", b"d"]
     assert b.depth()[0] == 0 and not b._waiting
+    # a flood of stream names: the newest frame is kept for at most MAX_KEPT_STREAMS of them
+    flood = Backlog(max_frames=5000, max_age_s=0.05)
+    for k in range(MAX_KEPT_STREAMS + 100):
+        flood.put([f"sf/raw/s{k}".encode(), b"x"], stale)
+    got, shed = flood.take(0, 10_000)
+    assert len(got) == MAX_KEPT_STREAMS and sum(shed.values()) == 100
+    assert [p[0] for p, *_ in got][0] == b"sf/raw/s100"  # the oldest were shed
     blocking = Backlog(max_frames=1000, max_age_s=0.05, policy="block")
     old = time.monotonic_ns() - 10**10
     for k in range(50):

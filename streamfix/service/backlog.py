@@ -10,7 +10,12 @@ import threading
 import time
 from collections import Counter, deque
 
-__all__ = ["Backlog"]
+__all__ = ["Backlog", "MAX_KEPT_STREAMS"]
+
+MAX_KEPT_STREAMS = 64
+"""Streams whose newest frame the age bound keeps (the oldest such frames beyond it are
+shed): more than the service runs engines for (``Limits.max_streams``, 16 by default),
+and it bounds the receiver's work per message under a flood of stream names."""
 
 
 class Backlog:
@@ -20,11 +25,11 @@ class Backlog:
     soon as it left the socket), so latencies are measured from arrival even while the
     loop is busy. Policy ``shed`` (the default, for live sensors): when more than
     ``max_frames`` frames wait, the oldest are dropped; frames that waited longer than
-    ``max_age_s`` are dropped too, except the newest waiting frame of each stream, so the
-    live output stays current: it jumps to the latest pose a stream sent rather than to
-    nothing, and the frame carries the count of those shed before it (a burst that ends
-    while the loop is busy would otherwise be shed whole and never announced). Drops are
-    counted per stream.
+    ``max_age_s`` are dropped too, except the newest waiting frame of each stream (of up
+    to :data:`MAX_KEPT_STREAMS` streams), so the live output stays current: it jumps to the
+    latest pose a stream sent rather than to nothing, and the frame carries the count of
+    those shed before it (a burst that ends while the loop is busy would otherwise be shed
+    whole and never announced). Drops are counted per stream.
     Policy ``block`` (for bulk producers that must lose nothing, e.g. ``replay --rate
     0``): the receiver stops taking messages at ``max_frames``, ZeroMQ's queues fill and
     the producer's PUSH blocks (back-pressure); nothing is shed and latency grows
@@ -97,11 +102,13 @@ class Backlog:
         items = self._items
         while len(items) > self.max_frames:
             self._shed_entry(items.popleft())
-        newest_kept = []
+        newest_kept: deque = deque()
         while items and now_ns - items[0][1] > self.max_age_ns:
             entry = items.popleft()
             if self._waiting[entry[2]] == 1:
                 newest_kept.append(entry)
+                if len(newest_kept) > MAX_KEPT_STREAMS:
+                    self._shed_entry(newest_kept.popleft())
             else:
                 self._shed_entry(entry)
         items.extendleft(reversed(newest_kept))
