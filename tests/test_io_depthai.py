@@ -184,6 +184,45 @@ def test_unsupported_keypoint_count_is_counted_and_the_stream_goes_on(recording)
     assert isinstance(items[1], Frame) and items[1].frame.skeleton == COCO_17.name
 
 
+class Idle(dai.node.ThreadedHostNode):
+    """Sends nothing; runs until its pipeline stops (a camera node between frames)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.output = self.createOutput()
+
+    def run(self) -> None:
+        while self.isRunning():
+            time.sleep(0.02)
+
+
+def _threads_named(prefix: str) -> list[str]:
+    names = []
+    for task in os.listdir("/proc/self/task"):
+        try:
+            names.append(Path(f"/proc/self/task/{task}/comm").read_text().strip())
+        except OSError:  # the thread ended while listed
+            pass
+    return [n for n in names if n.startswith(prefix)]
+
+
+def test_closing_the_source_leaves_no_pipeline_thread_for_the_destructor_to_join():
+    """``close()`` stops the pipeline and waits for its host threads (the wait releases the
+    GIL). The pipeline's destructor joins them holding the GIL: a host thread still on its
+    way back into Python when the last reference went hung the test suite once."""
+    pipeline = dai.Pipeline(False)
+    node = pipeline.create(Idle)
+    source = DepthaiSource(pipeline, node.output.createOutputQueue(), stream_id="oak")
+    pipeline.start()
+    deadline = time.monotonic() + 5.0
+    while not _threads_named("Idle") and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert _threads_named("Idle"), "the host node's thread never started"
+    source.close()
+    assert _threads_named("Idle") == [] and not pipeline.isRunning()
+    source.close()  # twice is harmless
+
+
 def test_depthai_spec_options_and_errors():
     assert parse_depthai_spec("depthai").fps == 30.0
     opts = parse_depthai_spec("depthai:model=luxonis/some-pose:coco,fps=15,device=1944301011")

@@ -376,9 +376,16 @@ class DepthaiSource:
         return items
 
     def close(self) -> None:
+        """Stop the pipeline and wait for its threads. The wait releases the GIL; the
+        pipeline's destructor joins the same threads while holding it, so a host node thread
+        still returning into Python when the last reference went hung the process (seen
+        once in the test suite, a deadlock between ``~PipelineImpl`` and ``take_gil``)."""
+        if self.pipeline is None:
+            return
         try:
-            if self.pipeline is not None and self.pipeline.isRunning():
+            if self.pipeline.isRunning():
                 self.pipeline.stop()
+            self.pipeline.wait()
         except RuntimeError:
             pass
 
