@@ -175,11 +175,11 @@ def run(args: argparse.Namespace) -> int:
 
     import zmq
 
+    from ..service.backlog import Backlog
     from ..service.engines import EngineOptions, engine_factory, parse_lookahead
     from ..service.limits import Limits
     from ..service.publisher import ServicePublisher
     from ..service.server import Service
-    from ..service.backlog import Backlog
     from ..service.sources import default_replay_file, open_source
     from ..transport.curve import CurveServer, is_loopback_endpoint
 

@@ -39,8 +39,9 @@ Sequence numbers: the service renumbers each stream's output per
 :mod:`.numbering` (``epoch`` and ``seq`` on the wire; ``seq`` can never overflow).
 
 Overload: the source keeps what it received in a bounded backlog
-(:class:`~.backlog.Backlog`) and sheds the oldest frames beyond it, never a stream's
-newest (so a burst that ends while the loop is busy still shows its last pose); shed frames are
+(:class:`~.backlog.Backlog`) and sheds the oldest frames beyond it; a frame too old is shed
+only when a later one of its stream is at hand (so a burst that ends while the loop is busy
+still shows its last pose; see the backlog for its bound); shed frames are
 counted (``streamfix_shed_frames_total{reason}``) and announced on the wire as
 ``dropped`` on the stream's next ``live`` frame. ``streamfix_input_backlog_frames`` /
 ``_seconds`` show the backlog.
@@ -75,12 +76,12 @@ from typing import Callable
 from ..frames import SkeletonFrame
 from ..skeletons import Skeleton, get_skeleton
 from ..transport.wire import WireError, check_stream_id
+from .items import Announce, Frame, Limited, Rejected, Shed
 from .limits import LIMITS, Limits
 from .metrics import MetricsServer, Registry
 from .numbering import Numbering
 from .publisher import ServicePublisher
 from .scope import SkeletonScope
-from .items import Announce, Frame, Limited, Rejected, Shed
 from .validate import REASONS, BadInput, LimitHit, check_rate, limit_coordinates, short, validate_frame
 
 __all__ = ["Service", "ServiceMetrics"]
