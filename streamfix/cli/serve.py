@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 
 HELP = "run the cleaning service: raw frames in (ZeroMQ PULL, stdin or a recording), live/clean out on ZeroMQ PUB"
@@ -163,6 +164,29 @@ def _open_sinks(args: argparse.Namespace) -> list:
     return sinks
 
 
+def _check_numbers(args: argparse.Namespace) -> str | None:
+    """What is wrong with the numeric socket and rate options (named as the user typed them), or None.
+    Checked before anything starts: a rate of 0 would otherwise start the service and then
+    refuse every frame, and ZeroMQ reports a negative high-water mark as a failed bind."""
+    if not (math.isfinite(args.max_rate) and args.max_rate > 0):
+        return f"--max-rate must be a rate > 0 Hz, got {args.max_rate:g}"
+    from ..service.limits import Limits
+
+    lowest = min(Limits().min_rate_hz, args.max_rate)  # as the service's limits are built below
+    if not (math.isfinite(args.sensor_rate) and lowest <= args.sensor_rate <= args.max_rate):
+        return (f"--sensor-rate must be a rate from {lowest:g} Hz to --max-rate ({args.max_rate:g} Hz), "
+                f"got {args.sensor_rate:g}")
+    if args.sndhwm < 0:
+        return f"--sndhwm must be >= 0 messages (0 = no limit), got {args.sndhwm}"
+    if args.linger_ms < -1:
+        return f"--linger-ms must be >= 0 ms (or -1: wait until every queued message has left), got {args.linger_ms}"
+    if not (math.isfinite(args.meta_interval) and args.meta_interval > 0):
+        return f"--meta-interval must be > 0 s, got {args.meta_interval:g}"
+    if not math.isfinite(args.status_interval):
+        return f"--status-interval must be a number of seconds, got {args.status_interval:g}"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=getattr(logging, args.log_level), stream=sys.stderr, format="streamfix serve: %(message)s"
@@ -192,6 +216,10 @@ def run(args: argparse.Namespace) -> int:
             return 2
     speed = check_speed("serve", args.speed)
     if speed is None:
+        return 2
+    problem = _check_numbers(args)
+    if problem:
+        print(f"streamfix serve: {problem}", file=sys.stderr)
         return 2
     try:  # checked now; the engine itself is built after the source is open (its imports take a while,
         # and a source that cannot open, e.g. no camera attached, should say so at once)

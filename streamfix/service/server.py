@@ -25,7 +25,8 @@ their own daemon threads; the engine may solve windows on its own worker):
    waited for the loop to block (``benchmarks/bench_service.py`` measures the effect:
    many streams arriving together on one core).
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
-   one-line status goes to stderr every ``status_interval_s``.
+   one-line status goes to stderr every ``status_interval_s`` and once at exit (0: only at
+   exit; negative: never).
 
 Containment: nothing a producer sends can raise out of the loop. Messages over a
 resource limit (:mod:`.limits`) are counted under ``streamfix_limit_hits_total{limit}``
@@ -94,7 +95,11 @@ _MAX_STREAM_LABELS = 64  # label sets of ended streams kept in per-stream metric
 #: ``streamfix_stream_failures_total{stage}``: where a contained exception came from
 FAILURE_STAGES = ("engine", "output", "flush")
 #: ``streamfix_stream_restarts_total{cause}``: why a stream's engine was started afresh
-RESTART_CAUSES = ("producer_restart", "skeleton_change", "failure")
+RESTART_CAUSES = ("producer_restart", "clock_reset", "skeleton_change", "failure")
+# a stream's sensor time this far behind its newest frame is a reset sensor clock (a restarted
+# sensor or bridge), not a frame out of order: its engine starts afresh instead of skipping
+# every later frame as late
+_CLOCK_RESET_NS = 1_000_000_000
 # engine counters forwarded as streamfix_engine_events_total{event=...}
 _ENGINE_EVENTS = ("windows_solved", "windows_skipped", "windows_abandoned", "solver_errors", "degrade_events")
 
@@ -386,6 +391,9 @@ class Service:
                 # seq jumped back by more than ~1 s: the sender restarted (the engine would
                 # otherwise skip every frame as late until seq caught up)
                 cause, why = "producer_restart", f"restarted (seq {frame.seq} after {st.last_seq})"
+            elif st.newest_t_ns is not None and st.newest_t_ns - int(frame.sensor_time_ns) > _CLOCK_RESET_NS:
+                back_s = (st.newest_t_ns - int(frame.sensor_time_ns)) / 1e9
+                cause, why = "clock_reset", f"restarted (sensor time went back {back_s:.3g} s)"
             else:
                 return st
             if st.restarted and time.monotonic_ns() - st.started_ns < self.limits.restart_cooldown_s * 1e9:
@@ -656,6 +664,8 @@ class Service:
             late = int(em.get("frames_dropped_late", 0))
             if late > st.late_seen:
                 self.m.late.inc(late - st.late_seen)
+                self._log_limited("stream %s: skipped %d input frames out of order (seq or sensor time not "
+                                  "after the previous frame's)", short(st.stream_id, 70), late - st.late_seen)
                 st.late_seen = late
             for event in _ENGINE_EVENTS:
                 n = int(em.get(event, 0) or 0)
@@ -676,6 +686,7 @@ class Service:
         limits = sum(self.m.limit_hits.values().values())
         shed = sum(self.m.shed.values().values())
         drops = sum(self.m.drops.values().values())
+        late = self.m.late.value()
 
         def ms(h) -> str:
             q = h.quantile(0.99)
@@ -684,7 +695,7 @@ class Service:
         return (
             f"streamfix serve: up {now - self._started:.0f}s | in {total_in} ({rate:.1f}/s) | "
             f"live {self.m.frames_out.value(topic='live'):.0f} clean {self.m.frames_out.value(topic='clean'):.0f} | "
-            f"malformed {malformed:.0f} | limits {limits:.0f} | shed {shed:.0f} | drops {drops:.0f} | "
+            f"malformed {malformed:.0f} | limits {limits:.0f} | shed {shed:.0f} | drops {drops:.0f} | late {late:.0f} | "
             f"streams {len(self.streams)} bodies {self.m.bodies.value():.0f} | live p99 {ms(self.m.live_latency)} "
             f"clean+ p99 {ms(self.m.clean_compute)} | degraded {'YES' if self.m.degraded.value() else 'no'}"
         )
@@ -724,7 +735,7 @@ class Service:
             self._flush()
         finally:
             self._sync_counters()
-            self._status(force=self.status_interval_s > 0)
+            self._status(force=self.status_interval_s >= 0)  # 0: only this one, at exit
             self.close()
         return 0
 

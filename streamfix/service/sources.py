@@ -56,7 +56,6 @@ from collections import Counter
 from pathlib import Path
 
 from ..frames import SkeletonFrame
-from ..skeletons import Skeleton
 from .backlog import Backlog
 from .items import Announce, Frame, Item, Limited, Rejected, Shed, wire_reason
 from .limits import Limits
@@ -221,7 +220,6 @@ class StdinSource:
         self.stream_id = stream_id
         self._queue: "queue.Queue[Item | None]" = queue.Queue(maxsize=maxsize)
         self.exhausted = False
-        self.skeletons: dict[str, Skeleton] = {}
         self._seq = 0
         self._thread = threading.Thread(target=self._read, name="stdin-source", daemon=True)
         self._thread.start()
@@ -237,10 +235,15 @@ class StdinSource:
                 except BadInput as exc:
                     self._queue.put(Rejected(exc.reason, f"stdin line {lineno}: {exc.detail}"))
                     continue
+                except Exception as exc:  # one line the parser did not foresee must not end the input
+                    self._queue.put(Rejected("invalid", f"stdin line {lineno}: {type(exc).__name__}: {exc}"))
+                    continue
                 if frame is None:
                     continue
-                if not isinstance(frame, SkeletonFrame):  # a skeleton line announces a layout
-                    self.skeletons[frame.skeleton.name] = frame.skeleton
+                if not isinstance(frame, SkeletonFrame):
+                    # a skeleton line announces a layout: the service checks it (a built-in name
+                    # cannot be redefined) and keeps it for that stream; this thread runs ahead of
+                    # the service, so it must not keep the layout itself
                     self._queue.put(Announce(frame.stream_id, frame.skeleton, frame.rate_hz))
                     continue
                 self._seq = frame.seq + 1

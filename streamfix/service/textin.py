@@ -120,6 +120,8 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | Skel
         # cut short: no closing brace and the parser ran into the end (a number may be half there)
         reason = "truncated" if not text.endswith("}") and exc.pos >= len(text) - 16 else "garbage"
         raise BadInput(reason, f"JSON line does not parse: {exc.msg} at column {exc.colno}") from None
+    except RecursionError:  # nesting deeper than the parser's stack: not a frame
+        raise BadInput("garbage", "JSON line is nested too deeply to be a frame") from None
     if not isinstance(obj, dict):
         raise BadInput("garbage", f"JSON line is a {type(obj).__name__}, expected an object")
     if obj.get("type") == "skeleton":
@@ -127,12 +129,8 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | Skel
     bodies_in = obj.get("bodies")
     if not isinstance(bodies_in, list):
         raise BadInput("invalid", "JSON frame has no 'bodies' list")
-    t_ns = _first(obj, "sensor_time_ns", "t_sensor_ns", "sensor_ns", "t_ns")
-    if t_ns is None and "t" in obj:
-        t_ns = float(obj["t"]) * 1e9
-    if t_ns is None:
-        t_ns = time.monotonic_ns()
     try:
+        t_ns = _sensor_time_ns(obj)
         bodies = []
         for i, b in enumerate(bodies_in):
             joints = _first(b, "joints", "positions")
@@ -155,15 +153,42 @@ def parse_json_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | Skel
             )
         return SkeletonFrame(
             stream_id=str(_first(obj, "stream", "stream_id", default=stream_id)),
-            seq=int(obj.get("seq", seq)),
-            sensor_time_ns=int(t_ns),
+            seq=_whole_number(obj.get("seq", seq), "seq"),
+            sensor_time_ns=t_ns,
             skeleton=str(obj.get("skeleton", KINECT_V2.name)),
             bodies=bodies,
         )
     except BadInput:
         raise
-    except (TypeError, ValueError, AttributeError) as exc:
+    except (TypeError, ValueError, AttributeError, OverflowError) as exc:
         raise BadInput("invalid", f"JSON frame has a malformed field: {exc}") from None
+
+
+_INT64_MAX = 2**63 - 1
+
+
+def _whole_number(value, name: str) -> int:
+    """``value`` as an int that fits the wire's int64; ValueError naming ``name`` otherwise
+    (a JSON ``1e400`` is inf, a ``null`` or a string is not a number)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    if not math.isfinite(value) or abs(value) > _INT64_MAX:
+        raise ValueError(f"{name} must be a finite number within int64, got {value!r}")
+    return int(value)
+
+
+def _sensor_time_ns(obj: dict) -> int:
+    """The frame's sensor time (ns) from its time key (``t`` in seconds), else the arrival
+    time on the monotonic clock (module docstring)."""
+    t_ns = _first(obj, "sensor_time_ns", "t_sensor_ns", "sensor_ns", "t_ns")
+    if t_ns is not None:
+        return _whole_number(t_ns, "sensor_time_ns")
+    if "t" in obj:
+        t = obj["t"]
+        if isinstance(t, bool) or not isinstance(t, (int, float)):
+            raise ValueError(f"t must be a number of seconds, got {t!r}")
+        return _whole_number(t * 1e9, "t (s)")
+    return time.monotonic_ns()
 
 
 def parse_line(line: str, stream_id: str, seq: int) -> SkeletonFrame | SkeletonMessage | None:
