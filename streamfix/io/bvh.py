@@ -120,7 +120,8 @@ def parse_bvh_hierarchy(path: str | Path, lines: list[str]) -> tuple[list[BvhJoi
         tok, ln = toks[pos]
         pos += 1
         if expect is not None and tok != expect:
-            raise MotionFileError(path, f"expected {expect!r}, got {tok!r}", line=ln)
+            shown = tok if len(tok) <= 40 else f"{tok[:40]}... ({len(tok)} characters)"
+            raise MotionFileError(path, f"expected {expect!r}, got {shown!r}", line=ln)
         return tok, ln
 
     def number(what: str) -> float:

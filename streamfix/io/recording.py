@@ -343,7 +343,8 @@ def read_motion_sfrec(
     path = Path(path)
     c = read_recording_contents(path)
     if not c.frames:
-        raise MotionFileError(path, f"no frames in the recording ({c.scan.records} records, {dict(c.skipped)} skipped)")
+        skipped = ", ".join(f"{n} {why}" for why, n in c.skipped.items()) or "none"
+        raise MotionFileError(path, f"no frames in the recording ({c.scan.records} records; skipped: {skipped})")
     streams = [f.stream_id for f in c.frames]
     stream = stream or streams[0]
     kinds_here = {k for f, k in zip(c.frames, c.kinds) if f.stream_id == stream}
