@@ -98,6 +98,24 @@ def test_twist_comes_from_the_hips_and_a_reversed_bone_is_reached():
     np.testing.assert_allclose(back[2, 1], [0, -1, 0], atol=1e-12)  # 180 deg swing
 
 
+def test_a_target_along_the_primary_bone_at_rest_does_not_twist_it():
+    # a wrist with its hand and thumb both along +x at rest (a T-pose): the thumb's offset
+    # has no part perpendicular to the hand's, so it cannot tell the twist (its angle was
+    # round-off against the thumb's jitter: up to 180 degrees). The hand swings up to 40
+    # degrees, the thumb stays near the hand's line with 2 mm of jitter: the wrist turns
+    # by the swing only
+    parents = np.array([-1, 0, 0])
+    offsets = np.array([[0, 0, 0], [0.06, 0, 0], [0.07, 0, 0]])
+    rng = np.random.default_rng(0)
+    angle = np.radians(np.linspace(0, 40, 50))
+    hand = np.stack([np.cos(angle), np.sin(angle), np.zeros(50)], axis=1)
+    thumb = 0.07 * hand + rng.normal(0, 0.002, (50, 3))
+    frames = np.stack([np.zeros((50, 3)), 0.06 * hand, thumb], axis=1)
+    q = solve_local_rotations(frames, parents, offsets)
+    np.testing.assert_allclose(Rotation.from_quat(q[:, 0]).magnitude(), angle, atol=1e-9)
+    np.testing.assert_allclose(forward_kinematics(frames[:, 0], q, parents, offsets)[:, 1], frames[:, 1], atol=1e-12)
+
+
 def test_missing_joint_keeps_parent_rotation_without_spreading_nan():
     parents = np.array([-1, 0, 1])
     offsets = np.array([[0, 0, 0], [0, 1.0, 0], [0, 1.0, 0]])

@@ -151,3 +151,22 @@ def test_missing_joints_go_out_at_their_rest_offset(shared_data):
     assert bones.rest_offsets[i][0] > 0  # the T-pose upper arm points out to the body's left (+x)
     j = bones.bones.index("RightLowerArm")  # a present joint is sent where it was measured
     assert not np.allclose(pos[:, j], bones.rest_offsets[j])
+
+
+def test_kinect_hands_turn_as_little_as_the_forearms_that_carry_them(shared_data):
+    # the Kinect v2 wrist aims at the hand and the thumb, both along the arm in the T-pose:
+    # their twist was noise, and received hands spun by up to 180 degrees every frame
+    from streamfix.cleaning import clean_recording
+    from streamfix.transport.vmc import VmcBones
+
+    m = read_motion(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
+    positions = clean_recording(m).motion.positions
+    bones = VmcBones.for_positions(m.skeleton, positions)
+    q = bones.transforms(positions)[1]
+    for side in ("Left", "Right"):
+        hand = Rotation.from_quat(q[:, bones.bones.index(f"{side}Hand")])
+        arm = Rotation.from_quat(q[:, bones.bones.index(f"{side}LowerArm")])
+        hand_step = np.degrees((hand[1:] * hand[:-1].inv()).magnitude())
+        arm_step = np.degrees((arm[1:] * arm[:-1].inv()).magnitude())
+        assert np.percentile(hand_step, 95) < 3 * np.percentile(arm_step, 95) + 2.0, side
+

@@ -26,6 +26,10 @@ The solve, parents before children, for node ``j``:
 * **twist** about ``d_a``: the angle that best aligns the other targets (hips twist from
   the two hip joints, a chest from the shoulders), in closed form from the components
   perpendicular to ``d_a``. With one target the twist is the parent's (no information);
+  so it is with targets whose rest vectors lie (nearly) along the primary's, within
+  :data:`TWIST_MIN_ANGLE_DEG`: a T-pose's thumb along the hand has no perpendicular part
+  at rest, and the angle from it would be noise (a wrist spun by up to 180 degrees from
+  one frame to the next);
 * a node without targets (a leaf, or only zero-length leaves) keeps its parent's
   rotation (``L = I``); so does any frame where a needed position is NaN.
 
@@ -128,6 +132,17 @@ def aim_targets(parents: np.ndarray, offsets: np.ndarray) -> list[list[tuple[int
     return targets
 
 
+TWIST_MIN_ANGLE_DEG = 10.0
+"""A non-primary target whose rest vector is within this angle (degrees) of the primary's does not twist."""
+_TWIST_MIN_SIN = float(np.sin(np.radians(TWIST_MIN_ANGLE_DEG)))
+
+
+def _twists(rest: np.ndarray, primary_rest: np.ndarray) -> bool:
+    """Whether a target at ``rest`` can tell the twist about the primary bone (not along it)."""
+    a, b = np.linalg.norm(rest), np.linalg.norm(primary_rest)
+    return bool(a > 0 and b > 0 and np.linalg.norm(np.cross(rest, primary_rest)) > _TWIST_MIN_SIN * a * b)
+
+
 @lru_cache(maxsize=64)
 def _levels(parents_bytes: bytes) -> list[tuple[np.ndarray, np.ndarray]]:
     """``[(nodes, their parents), ...]`` by tree depth, root first; ``n`` stands for "no parent"."""
@@ -165,6 +180,8 @@ def _plan(parents_bytes: bytes, offsets_bytes: bytes, n: int, primary: tuple) ->
             aim.append(tj[0][0])
             aim_rest.append(tj[0][1])
             for k, rk in tj[1:]:
+                if not _twists(rk, tj[0][1]):
+                    continue
                 sec.append(k)
                 sec_rest.append(rk)
                 sec_owner.append(len(aimed) - 1)
