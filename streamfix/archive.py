@@ -12,6 +12,10 @@ What is guaranteed:
   with its error; the others go on. :func:`write_summary` writes one JSON record per input
   (status ``ok`` / ``skipped`` / ``failed``, output, error, frames, seconds).
 
+* **Ctrl-C stops at once.** Files not started are cancelled, worker processes are stopped
+  (their partial files removed) and the exception goes on to the caller; outputs already
+  renamed into place are complete.
+
 Not guaranteed: order of completion (progress reports files as they finish).
 
 Cluster: ``cluster="tcp://HOST:PORT"`` connects to a running Dask scheduler;
@@ -21,6 +25,7 @@ have streamfix installed (and the input and output paths visible).
 """
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import os
@@ -40,6 +45,7 @@ __all__ = [
     "write_summary",
     "carry_over",
     "is_archive_input",
+    "partial_path",
 ]
 
 SUMMARY_NAME = "streamfix-clean-summary.json"
@@ -129,6 +135,17 @@ def plan_outputs(root: Path, inputs: Sequence[Path], out_dir: str | Path) -> lis
     return jobs
 
 
+def partial_path(path: str | Path, pid: int | None = None) -> Path:
+    """Where ``path`` is written before it is complete: a hidden ``.STEM.part-PID.EXT`` beside it.
+
+    Same folder (so ``os.replace`` into place is atomic), the same extension (the writer picks
+    the format from it), a leading dot (never found as a recording). ``pid``: the writing
+    process (default this one), so the name of a killed writer's leftover can be found.
+    """
+    out = Path(path)
+    return out.with_name(f".{out.stem}.part-{os.getpid() if pid is None else pid}{out.suffix}")
+
+
 _PRIOR_SET: list[str | None] = [None]  # the prior this process last made its default
 
 
@@ -142,7 +159,7 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
     record = {"input": str(input_path), "output": str(output_path), "status": "failed", "error": None,
               "frames": 0, "seconds": 0.0}
     out = Path(output_path)
-    tmp = out.with_name(f".{out.stem}.part-{os.getpid()}{out.suffix}")
+    tmp = partial_path(out)
     try:
         from .cleaning import clean_recording
         from .io import read_motion, write_motion
@@ -180,6 +197,14 @@ def _is_complete(path: str) -> bool:
     return p.is_file() and p.stat().st_size > 0
 
 
+def _ignore_sigint() -> None:
+    """Pool worker initializer: Ctrl-C is the parent's to handle (it stops the workers itself),
+    so a terminal's SIGINT to the whole process group does not kill a worker mid-write."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _local_results(jobs: list[ArchiveJob], options: ArchiveOptions, n_jobs: int) -> Iterator[dict]:
     if n_jobs <= 1:
         for job in jobs:
@@ -188,10 +213,41 @@ def _local_results(jobs: list[ArchiveJob], options: ArchiveOptions, n_jobs: int)
     import multiprocessing
 
     # spawn: a forked child would inherit onnxruntime / BLAS thread state of the parent
-    with ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures: dict[Future, ArchiveJob] = {pool.submit(clean_file, j.input, j.output, options): j for j in jobs}
+    pool = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_ignore_sigint)
+    futures: dict[Future, ArchiveJob] = {}
+    try:
+        for j in jobs:
+            futures[pool.submit(clean_file, j.input, j.output, options)] = j
         for fut in as_completed(futures):
             yield _result_or_failure(fut, futures[fut])
+    except BaseException:  # Ctrl-C, an error, or the consumer stopped early (GeneratorExit)
+        _stop_pool(pool, [j for f, j in futures.items() if not f.done()])
+        raise
+    pool.shutdown(wait=True)
+
+
+def _stop_pool(pool: ProcessPoolExecutor, unfinished: list[ArchiveJob], grace_s: float = 5.0) -> None:
+    """Stop a pool now, without waiting for its queued or running files: cancel what has not
+    started, terminate the workers (killed if still alive after ``grace_s``), and remove the
+    partial files the terminated workers leave behind. A plain ``shutdown()`` waits for every
+    queued file, and can wait forever on a worker idle on its call queue after a Ctrl-C."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown() drops them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        if proc.is_alive():
+            proc.terminate()
+    deadline = time.monotonic() + grace_s
+    for proc in processes:
+        proc.join(max(0.0, deadline - time.monotonic()))
+    for proc in processes:
+        if proc.is_alive():
+            proc.kill()
+            proc.join(1.0)
+    for job in unfinished:  # a worker killed mid-file never ran clean_file's cleanup
+        for proc in processes:
+            if proc.pid is not None:
+                partial_path(job.output, proc.pid).unlink(missing_ok=True)
 
 
 def _result_or_failure(fut, job: ArchiveJob) -> dict:
@@ -267,22 +323,33 @@ def clean_archive(
         else:
             todo.append(job)
     results = _cluster_results(todo, options, cluster) if cluster else _local_results(todo, options, n_jobs)
-    for rec in results:
-        records[(rec["input"], rec["output"])] = rec
-        done += 1
-        if progress is not None:
-            progress(done, len(jobs), rec)
+    try:
+        for rec in results:
+            records[(rec["input"], rec["output"])] = rec
+            done += 1
+            if progress is not None:
+                progress(done, len(jobs), rec)
+    finally:  # an exception here (Ctrl-C in progress()) stops the workers now, not when the generator is collected
+        results.close()
     return [records[(j.input, j.output)] for j in jobs]
 
 
 def write_summary(records: list[dict], path: str | Path, options: ArchiveOptions | None = None) -> None:
-    """The per-input records as JSON (written under a temporary name, then renamed)."""
+    """The per-input records as JSON (written under a temporary name, then renamed).
+
+    Raises OSError naming ``path`` (not the temporary name, which the caller never gave).
+    """
     path = Path(path)
     counts = {s: sum(r["status"] == s for r in records) for s in ("ok", "skipped", "failed")}
     doc = {"inputs": len(records), **counts, "options": asdict(options) if options else None, "files": records}
-    tmp = path.with_name(f".{path.name}.part-{os.getpid()}")
-    tmp.write_text(json.dumps(doc, indent=1) + "\n")
-    os.replace(tmp, path)
+    tmp = partial_path(path)
+    try:
+        tmp.write_text(json.dumps(doc, indent=1) + "\n")
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
 
 
 def carry_over(records: list[dict], previous_summary: str | Path) -> list[dict]:

@@ -23,6 +23,7 @@ Dask, outputs that already exist skipped (a rerun resumes), a JSON summary per i
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -90,6 +91,18 @@ def _parse_lengths(text: str, n_bones: int) -> tuple[float, ...]:
     return values
 
 
+def _check_training(paths: list[str] | None) -> str | None:
+    """Why ``--training`` cannot be used (a path that is neither a file nor a folder), or None.
+
+    Checked up front for every input: the gap filler reads the takes only for a marker set
+    with gaps, so a mistyped path would otherwise pass unnoticed on most files.
+    """
+    for path in paths or ():
+        if not (Path(path).is_file() or Path(path).is_dir()):
+            return f"--training {path}: training take not found (expected a motion file or a directory)"
+    return None
+
+
 class _Progress:
     """A one-line progress bar on stderr, drawn only when stderr is a terminal."""
 
@@ -131,6 +144,10 @@ def run(args: argparse.Namespace) -> int:
         check_output(args.output, formats=WRITE_FORMATS, inputs=[args.input], overwrite=args.overwrite)
     except (OSError, ValueError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
+        return 2
+    bad_training = _check_training(args.training)
+    if bad_training:
+        print(f"streamfix clean: {bad_training}", file=sys.stderr)
         return 2
     from .options import apply_prior_option, check_sensor_bias_option
 
@@ -242,11 +259,26 @@ def _run_archive(args: argparse.Namespace) -> int:
     inputs = [p for p in inputs if not p.resolve().is_relative_to(out_dir.resolve())]  # not last run's outputs
     if not inputs:
         return fail(f"{args.input}: no motion files found (.csv, .bvh, .c3d, .sfrec)")
+    bad_training = _check_training(args.training)
+    if bad_training:
+        return fail(bad_training)
+    created = not out_dir.exists()
     try:
         jobs = plan_outputs(root, inputs, out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
     except (OSError, ValueError) as exc:
         return fail(str(exc))
+    summary = Path(args.summary) if args.summary else out_dir / SUMMARY_NAME
+    if args.summary:  # before any cleaning (OUT exists now): an unwritable summary must not cost the whole run
+        from .outputs import check_output
+
+        try:
+            check_output(summary, formats=(summary.suffix.lower(),), overwrite=True)
+        except (OSError, ValueError) as exc:
+            if created:
+                with contextlib.suppress(OSError):
+                    out_dir.rmdir()  # only the empty folder this run made
+            return fail(f"--summary {exc}")
     from .options import apply_prior_option, check_sensor_bias_option
 
     if not apply_prior_option("clean", args.prior):  # checked here once, before any worker loads it
@@ -282,7 +314,6 @@ def _run_archive(args: argparse.Namespace) -> int:
     except (RuntimeError, ValueError, OSError) as exc:
         print(f"streamfix clean: {exc}", file=sys.stderr)
         return 1
-    summary = Path(args.summary) if args.summary else out_dir / SUMMARY_NAME
     records = carry_over(records, summary)  # a resumed run still reports every output's frames
     try:
         write_summary(records, summary, options)

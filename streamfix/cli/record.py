@@ -18,21 +18,108 @@ Stops after ``--count N`` frames, after ``--duration S`` seconds, or on a signal
 Malformed messages are counted by reason, skipped, and reported on stderr.
 
 OUT must end in ``.sfrec`` (the only format written byte for byte); an existing file
-needs ``--append`` or ``--overwrite``. A failed write (disk full) prints one line and
-exits 1; the file then holds every record acknowledged before the error.
+needs ``--append`` or ``--overwrite``. The endpoint is connected (or bound) before OUT is
+opened, so a start that fails (a bad endpoint, a busy port) creates no file and leaves an
+existing one as it was. ``--overwrite`` writes a temporary file beside OUT that takes OUT's
+name at the first record (or at a clean stop): the old recording is kept until the new one
+holds data, and the crash-safety promise above holds from then on. A failed write (disk
+full) prints one line and exits 1; the file then holds every record acknowledged before
+the error (an old recording that was to be overwritten is kept if no record was written).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
+import os
 import signal
 import sys
 import time
+from pathlib import Path
 
 HELP = "subscribe to a streamfix endpoint and append messages to a crash-safe .sfrec recording"
 
 
 class _Stop(Exception):
     """Raised by the SIGINT/SIGTERM handler to leave the receive loop at once."""
+
+
+class _Output:
+    """The recording being written: OUT itself, or (``--overwrite`` of an existing file) a
+    temporary file beside it renamed over OUT by :meth:`commit`.
+
+    Opened only after the endpoint is up, so a failed start never touches OUT.
+    """
+
+    def __init__(self, path: str, *, append: bool, overwrite: bool, fsync_interval_s: float) -> None:
+        from ..archive import partial_path
+        from ..io.recording import RecordingWriter
+
+        self.path = Path(path)
+        self.pending: Path | None = None  # the temporary file, until it takes OUT's name
+        if overwrite and not append and self.path.exists():
+            self.pending = partial_path(self.path)
+            try:
+                self.writer = RecordingWriter(self.pending, overwrite=True, fsync_interval_s=fsync_interval_s)
+            except BaseException:
+                self.pending.unlink(missing_ok=True)
+                raise
+        else:
+            existed = self.path.exists()
+            try:
+                self.writer = RecordingWriter(self.path, append=append, overwrite=overwrite,
+                                              fsync_interval_s=fsync_interval_s)
+            except FileExistsError:
+                raise
+            except BaseException:
+                if not existed:  # created here, header not written (disk full): leave nothing behind
+                    with contextlib.suppress(OSError):
+                        self.path.unlink()
+                raise
+
+    def write(self, topic: bytes, payload: bytes, recv_time_ns: int) -> None:
+        """Append one record; the first one of an overwrite moves the new file into OUT's place."""
+        self.writer.write(topic, payload, recv_time_ns)
+        if self.pending is not None:
+            self.commit()
+
+    def commit(self) -> None:
+        """Rename the temporary file over OUT (atomic within the folder; the open file goes on)."""
+        if self.pending is None:
+            return
+        self.writer.sync()
+        os.replace(self.pending, self.path)
+        self.pending = None
+        with contextlib.suppress(OSError):  # the rename itself survives a power loss
+            fd = os.open(self.path.parent, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+    def close(self, keep: bool) -> None:
+        """Close the file; a temporary file not yet renamed takes OUT's name when ``keep``, else is removed."""
+        try:
+            self.writer.close()
+        finally:
+            if self.pending is not None:
+                if keep:
+                    self.commit()
+                else:
+                    self.pending.unlink(missing_ok=True)
+
+
+def _check_numbers(args: argparse.Namespace) -> bool:
+    """False after one line on stderr when ``--count``, ``--duration`` or ``--fsync`` is out of range."""
+    from .tap import check_stop_options
+
+    if not check_stop_options("record", args.count, args.duration):
+        return False
+    if math.isnan(args.fsync) or args.fsync < 0:
+        print(f"streamfix record: --fsync must be a number of seconds >= 0 (0 = every record), got {args.fsync:g}",
+              file=sys.stderr)
+        return False
+    return True
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -63,10 +150,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import zmq
 
-    from ..io.recording import RecordingWriter
     from ..transport.wire import SkeletonMessage, resolve_topic_arg, topic_prefix
     from ..transport.zmq_io import Subscriber
 
+    if not _check_numbers(args):
+        return 2
     topics = [resolve_topic_arg(t) for t in (args.topic or ["sf/"])]
     meta = topic_prefix("meta")
 
@@ -80,21 +168,33 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         check_output(args.out, formats=(".sfrec",), overwrite=args.overwrite, append=args.append)
-        curve = curve_client(args)
-        writer = RecordingWriter(args.out, append=args.append, overwrite=args.overwrite,
-                                 fsync_interval_s=args.fsync)
     except (OSError, ValueError) as exc:
         print(f"streamfix record: cannot open {args.out}: {exc}"
               + (" (use --append or --overwrite)" if isinstance(exc, FileExistsError) else ""), file=sys.stderr)
         return 2
     try:
+        curve = curve_client(args)
+    except (OSError, ValueError) as exc:
+        print(f"streamfix record: CURVE keys: {exc}", file=sys.stderr)
+        return 2
+    try:  # the endpoint first: a start that fails must not create, truncate or replace OUT
         sub = Subscriber(args.endpoint, topics + [meta], bind=args.bind,
                          socket_type=zmq.PULL if args.bind else zmq.SUB, on_error=on_error, curve=curve)
     except zmq.ZMQError as exc:
-        writer.close()
         print(f"streamfix record: cannot {'bind' if args.bind else 'connect to'} {args.endpoint!r}: {exc}",
               file=sys.stderr)
         return 2
+    try:
+        out = _Output(args.out, append=args.append, overwrite=args.overwrite, fsync_interval_s=args.fsync)
+    except (OSError, ValueError) as exc:
+        sub.close()
+        print(f"streamfix record: cannot open {args.out}: {exc}"
+              + (" (use --append or --overwrite)" if isinstance(exc, FileExistsError) else ""), file=sys.stderr)
+        return 2
+    except BaseException:
+        sub.close()
+        raise
+    writer = out.writer
 
     def _handler(signum, _frame):
         raise _Stop(signum)
@@ -105,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     reason = "done"
     failed = None
+    ended = False  # stopped by --count, --duration or a signal: what was recorded is OUT now
     try:
         while args.count is None or frames < args.count:
             remaining = None
@@ -120,31 +221,35 @@ def run(args: argparse.Namespace) -> int:
                     if last_meta.get(msg.stream_id) == key:
                         continue  # a periodic repeat: already in the file
                     last_meta[msg.stream_id] = key
-                    writer.write(rec.topic, rec.payload, rec.recv_time_ns)
+                    out.write(rec.topic, rec.payload, rec.recv_time_ns)
                     continue
                 if not any(rec.topic.startswith(t) for t in topics):
                     continue
-                writer.write(rec.topic, rec.payload, rec.recv_time_ns)
+                out.write(rec.topic, rec.payload, rec.recv_time_ns)
                 frames += 1
                 if args.ack:
                     print(f"ack {rec.topic.decode('ascii')} {msg.seq}", flush=True)
         else:
             reason = "count reached"
+        ended = True
     except _Stop as stop:
         reason = f"signal {signal.Signals(stop.args[0]).name}"
+        ended = True
     except OSError as exc:  # disk full, file too large, I/O error: every record before it is readable
         failed = f"writing {args.out} failed after {frames} frames: {exc.strerror or exc}"
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+        kept_old = out.pending is not None and not ended  # nothing of this run reached OUT
         try:
-            writer.close()
+            out.close(keep=ended)
         except OSError as exc:
             failed = failed or f"closing {args.out} failed after {frames} frames: {exc.strerror or exc}"
         sub.close()
     if failed:
-        print(f"streamfix record: {failed}; the file holds every frame acknowledged before the error",
-              file=sys.stderr)
+        where = (f"{args.out} is left as it was" if kept_old
+                 else "the file holds every frame acknowledged before the error")
+        print(f"streamfix record: {failed}; {where}", file=sys.stderr)
         return 1
     if not args.quiet:
         c = sub.counters

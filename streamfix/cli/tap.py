@@ -46,6 +46,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_curve_client_arguments(p)
 
 
+def check_stop_options(command: str, count: int | None, duration: float | None) -> bool:
+    """False after one line on stderr when ``--count`` (>= 1) or ``--duration`` (> 0 seconds)
+    is out of range: a count of 0 or a negative duration would stop at once and look like success."""
+    if count is not None and count < 1:
+        print(f"streamfix {command}: --count must be >= 1, got {count}", file=sys.stderr)
+        return False
+    if duration is not None and not (duration > 0 and math.isfinite(duration)):
+        print(f"streamfix {command}: --duration must be a number of seconds > 0, got {duration:g}", file=sys.stderr)
+        return False
+    return True
+
+
 def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
@@ -127,8 +139,7 @@ def run(args: argparse.Namespace) -> int:
     from ..transport.zmq_io import Subscriber
 
     topics = [resolve_topic_arg(t) for t in (args.topic or ["live", "clean"])]
-    if args.count is not None and args.count < 1:
-        print("streamfix tap: --count must be >= 1", file=sys.stderr)
+    if not check_stop_options("tap", args.count, args.duration):
         return 2
 
     def on_error(topic: bytes, error) -> None:
