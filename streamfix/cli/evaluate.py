@@ -11,20 +11,32 @@ import json
 import math
 import sys
 from collections import defaultdict
+from pathlib import Path
 
-from .options import add_list_argument
+from .options import add_list_argument, positive_number
 
 HELP = "reproduce the paper's protocols (noise, gaps, ...) on files and score every method"
 
 #: Protocols whose runner takes no corruption levels (``--levels`` is an error there).
 _NO_LEVELS = ("kinect", "sensor", "paired")
 
+#: What a ``--levels`` value is per protocol and its valid range, in the user's units (the
+#: runners take %, or frames, and fail deep inside on a value out of range, e.g. noise's
+#: ``fraction must be in [0, 1], got -0.05`` for ``--levels -5``).
+_LEVEL_RANGES = {
+    "noise": ("a % of coordinates given noise, 0 to 100", lambda v: 0 <= v <= 100),
+    "gaps": ("a % of joint-frames missing, 0 to less than 100", lambda v: 0 <= v < 100),
+    "occlusion": ("a % of joints dropped, 0 to 100", lambda v: 0 <= v <= 100),
+    "long-gaps": ("a gap length in frames, 1 or more", lambda v: 1 <= v < math.inf),
+    "blackout": ("a % of each window's frames removed, more than 0 up to 100", lambda v: 0 < v <= 100),
+}
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("files", nargs="*", metavar="FILE",
                         help="motion files (BVH, C3D, Kinect v2 CSV); for --protocol paired the paired "
                              "recordings' directory (default ../shared/data/paired)")
-    parser.add_argument("--rate", type=float, default=None, metavar="HZ",
+    parser.add_argument("--rate", type=positive_number("Hz"), default=None, metavar="HZ",
                         help="resample every file to HZ first (e.g. 30 for a Kinect's rate); default: native")
     parser.add_argument("--protocol", default="auto",
                         help="noise | gaps | kinect | occlusion | long-gaps | blackout | sensor | auto (default: "
@@ -116,6 +128,25 @@ def _accepts(fn, keyword: str) -> bool:
     return keyword in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
+def _directory_message(path: str, protocol: str, protocols: dict) -> str:
+    """Why a directory given as FILE is refused, and what it holds. Why: only a protocol that
+    takes a directory (paired, its recordings' directory) reads one; any other wants the
+    motion files themselves, and a reader would blame the directory's (missing) extension."""
+    from ..io import READ_FORMATS
+
+    try:
+        found = sorted(p.name for p in Path(path).iterdir() if p.suffix.lower() in READ_FORMATS and p.is_file())
+    except OSError as exc:
+        found, holds = [], f"it cannot be listed ({exc.strerror or exc})"
+    else:
+        holds = (f"it holds {len(found)} motion file(s): {', '.join(found[:3])}{', ...' if len(found) > 3 else ''}"
+                 f"; give them as FILE arguments, e.g. {Path(path) / ('*' + Path(found[0]).suffix)}" if found else
+                 f"it holds no motion files ({', '.join(READ_FORMATS)})")
+    readers = sorted(n for n, fn in protocols.items() if _accepts(fn, "subset"))
+    takes = f" (only --protocol {', '.join(readers)} reads a directory)" if readers else ""
+    return f"{path} is a directory, protocol {protocol} reads motion files{takes}: {holds}"
+
+
 def run(args: argparse.Namespace) -> int:
     from ..evaluation.registry import ALL_METHODS, discover_protocols, is_kinect_file
     from .progress import ProgressLine
@@ -144,6 +175,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"streamfix eval: unknown protocol {name!r}; available: {', '.join(sorted(protocols))}",
                   file=sys.stderr)
             return 2
+        if Path(f).is_dir() and not _accepts(protocols[name], "subset"):
+            print(f"streamfix eval: {_directory_message(f, name, protocols)}", file=sys.stderr)
+            return 2
         plan[name].append(f)
     if args.levels is not None:
         levelless = [name for name in plan if name in _NO_LEVELS]
@@ -151,6 +185,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"streamfix eval: --levels does not apply to protocol {', '.join(levelless)} (it has no "
                   "corruption levels)", file=sys.stderr)
             return 2
+        for name in plan:
+            what, valid = _LEVEL_RANGES.get(name, (None, None))
+            bad = [lv for lv in args.levels if valid is not None and not valid(lv)]
+            if bad:
+                print(f"streamfix eval: --levels {', '.join(f'{lv:g}' for lv in bad)} out of range for protocol "
+                      f"{name}: a level there is {what}", file=sys.stderr)
+                return 2
     by_protocol: dict[str, list[dict]] = {}
     progress = ProgressLine("eval", forced=args.progress).__enter__()
     try:

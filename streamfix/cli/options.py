@@ -12,14 +12,19 @@ list options (``--levels``, ``--methods``, ``--joints``, ``--held-out``, ``--top
     take ``a,b``, ``a b`` or a repeated flag, all alike;
 ``--duration S``
     stop after S seconds (``record``, ``tap``, ``view``).
+
+A number out of its option's range is refused by the parser (exit 2, the flag named):
+:func:`positive_number` and :func:`int_at_least` build such argument types.
 """
 from __future__ import annotations
 
 import argparse
 import math
 import sys
+from typing import Callable
 
-__all__ = ["apply_prior_option", "add_sensor_bias_argument", "check_sensor_bias_option", "ListOption", "add_list_argument", "add_speed_argument", "check_speed"]
+__all__ = ["apply_prior_option", "add_sensor_bias_argument", "check_sensor_bias_option", "ListOption", "add_list_argument", "add_speed_argument", "check_speed",
+           "OptionValueError", "positive_number", "int_at_least"]
 
 
 def apply_prior_option(command: str, path: str | None) -> bool:
@@ -113,3 +118,46 @@ def check_speed(command: str, speed: float, allow_zero: bool = True) -> float | 
         print(f"streamfix {command}: --speed must be {bound}, got {speed:g}", file=sys.stderr)
         return None
     return math.inf if speed == 0 else float(speed)
+
+
+class OptionValueError(argparse.ArgumentTypeError, ValueError):
+    """A flag's value out of its range. argparse prints the message after the flag's name
+    and exits 2; being a ValueError, a ``--config`` file's value checked with the same
+    argument type (:mod:`streamfix.cli.config`) is refused too, naming the file and key."""
+
+
+def positive_number(unit: str) -> Callable[[str], float]:
+    """Argument type: a finite number > 0 in ``unit`` (e.g. ``"Hz"``). Why: 0, a negative,
+    nan or inf would otherwise fail deep inside the command with a message that does not
+    name the flag (``--rate 0`` as a resampler's ``dst_hz=0.0``)."""
+
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except (TypeError, ValueError):
+            raise OptionValueError(f"expected a number of {unit} > 0, got {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise OptionValueError(f"must be a number of {unit} > 0, got {text}")
+        return value
+
+    convert.__name__ = f"number of {unit} > 0"  # named in --config errors
+    return convert
+
+
+def int_at_least(low: int, note: str = "") -> Callable[[str], int]:
+    """Argument type: an integer >= ``low``; ``note`` says what the bound means (e.g.
+    ``"0 = no limit"``). Why: ZeroMQ answers a negative high-water mark with
+    ``Invalid argument`` at connect time, blaming the endpoint instead of the flag."""
+    bound = f"an integer >= {low}" + (f" ({note})" if note else "")
+
+    def convert(text: str) -> int:
+        try:
+            value = int(text)
+        except (TypeError, ValueError):
+            raise OptionValueError(f"expected {bound}, got {text!r}") from None
+        if value < low:
+            raise OptionValueError(f"must be {bound}, got {value}")
+        return value
+
+    convert.__name__ = f"integer >= {low}"  # named in --config errors
+    return convert

@@ -39,16 +39,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="recording to play")
     p.add_argument("--to", default="tcp://127.0.0.1:5555",
                    help="endpoint to connect a PUSH socket to: the service's --source (default %(default)s)")
-    from .options import add_speed_argument
+    from .options import add_speed_argument, int_at_least, positive_number
 
     add_speed_argument(p, "pacing")
     p.add_argument("--loop", action="store_true", help="repeat the recording until interrupted")
     p.add_argument("--stream-id", default=None, help="stream id to send (default: the file name)")
     p.add_argument("--body-id", type=int, default=0, help="body id of the recorded body (default 0)")
-    p.add_argument("--sndhwm", type=int, default=1000, help="PUSH high-water mark (messages) before it blocks")
-    p.add_argument("--linger-ms", type=int, default=10000,
-                   help="on exit, wait up to this long for queued frames to be delivered (default %(default)s)")
-    p.add_argument("--timeout", type=float, default=10.0, metavar="S",
+    # ranges checked by the parser: ZeroMQ would refuse them later, blaming the endpoint
+    p.add_argument("--sndhwm", type=int_at_least(0, "0 = no limit"), default=1000,
+                   help="PUSH high-water mark (messages) before it blocks (0 = no limit)")
+    p.add_argument("--linger-ms", type=int_at_least(-1, "-1 = wait forever"), default=10000,
+                   help="on exit, wait up to this long for queued frames to be delivered (default %(default)s; "
+                        "-1 = forever)")
+    p.add_argument("--timeout", type=positive_number("seconds"), default=10.0, metavar="S",
                    help="give up (exit 1) when no receiver takes a frame for S seconds (default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no summary line on stderr")
     from .keys import add_curve_client_arguments

@@ -48,6 +48,11 @@ WRITE_FORMATS = tuple(ext for ext, (_, _, w) in _FORMATS.items() if w)
 
 
 def _handler(path: str | Path, which: int):
+    if Path(path).is_dir():  # else named by its (missing) extension: "unknown extension '(none)'"
+        supported = READ_FORMATS if which == 1 else WRITE_FORMATS
+        raise ValueError(
+            f"{Path(path).name}: is a directory, not a motion file; expected a file ending in {', '.join(supported)}"
+        )
     ext = Path(path).suffix.lower()
     if ext not in _FORMATS:
         supported = READ_FORMATS if which == 1 else WRITE_FORMATS
