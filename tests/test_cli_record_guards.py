@@ -126,15 +126,15 @@ def test_a_write_that_fails_before_any_record_keeps_the_old_recording(old_record
 
 
 _STOPS = [
-    ("--count", "0", "--count must be >= 1, got 0"),
-    ("--count", "-1", "--count must be >= 1, got -1"),
-    ("--duration", "-1", "--duration must be a number of seconds > 0, got -1"),
-    ("--duration", "0", "--duration must be a number of seconds > 0, got 0"),
-    ("--duration", "nan", "--duration must be a number of seconds > 0, got nan"),
+    ("--count", "0", "argument --count: must be an integer >= 1, got 0"),
+    ("--count", "-1", "argument --count: must be an integer >= 1, got -1"),
+    ("--duration", "-1", "must be a number of seconds > 0, got -1"),
+    ("--duration", "0", "must be a number of seconds > 0, got 0"),
+    ("--duration", "nan", "must be a number of seconds > 0, got nan"),
 ]
 _FSYNC = [
-    ("--fsync", "-1", "--fsync must be a number of seconds >= 0"),
-    ("--fsync", "nan", "--fsync must be a number of seconds >= 0"),
+    ("--fsync", "-1", "argument --fsync: must be a number of seconds >= 0 (0 = every record), got -1"),
+    ("--fsync", "nan", "argument --fsync: must be a number of seconds >= 0 (0 = every record), got nan"),
 ]
 
 
@@ -143,6 +143,8 @@ _FSYNC = [
 def test_numbers_that_would_stop_at_once_are_refused(tmp_path, capsys, command, option, value, message):
     out = tmp_path / "r.sfrec"
     argv = ["record", "tcp://127.0.0.1:1", str(out)] if command == "record" else ["tap", "tcp://127.0.0.1:1"]
-    assert main([*argv, option, value]) == 2
-    assert f"streamfix {command}: {message}" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # the parser refuses it, naming the flag
+        main([*argv, option, value])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"streamfix {command}: error:" in err and option in err and message in err
     assert not out.exists()

@@ -115,7 +115,13 @@ def test_frames_out_of_order_are_skipped_counted_logged_and_shown(shared_data, c
 
 
 @pytest.mark.parametrize("option, value", [("--sensor-rate", "0"), ("--sensor-rate", "nan"), ("--max-rate", "0"),
-                                           ("--sndhwm", "-1"), ("--linger-ms", "-5")])
+                                           ("--sndhwm", "-1"), ("--linger-ms", "-5"), ("--meta-interval", "0")])
 def test_serve_refuses_bad_numbers_before_it_starts(option, value, capsys):
-    assert main(["serve", "--source", "stdin", option, value]) == 2
-    assert option in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # the parser refuses it, naming the flag
+        main(["serve", "--source", "stdin", option, value])
+    assert exc.value.code == 2 and option in capsys.readouterr().err
+
+
+def test_serve_refuses_a_sensor_rate_its_limits_would_refuse(capsys):
+    assert main(["serve", "--source", "stdin", "--sensor-rate", "300", "--max-rate", "240"]) == 2
+    assert "--sensor-rate must be a rate from 1 Hz to --max-rate (240 Hz), got 300" in capsys.readouterr().err

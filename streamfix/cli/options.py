@@ -126,21 +126,24 @@ class OptionValueError(argparse.ArgumentTypeError, ValueError):
     argument type (:mod:`streamfix.cli.config`) is refused too, naming the file and key."""
 
 
-def positive_number(unit: str) -> Callable[[str], float]:
-    """Argument type: a finite number > 0 in ``unit`` (e.g. ``"Hz"``). Why: 0, a negative,
-    nan or inf would otherwise fail deep inside the command with a message that does not
-    name the flag (``--rate 0`` as a resampler's ``dst_hz=0.0``)."""
+def positive_number(unit: str, *, zero: str | None = None) -> Callable[[str], float]:
+    """Argument type: a finite number > 0 in ``unit`` (e.g. ``"Hz"``), or >= 0 when ``zero``
+    says what 0 means (e.g. ``"every record"``). Why: 0, a negative, nan or inf would
+    otherwise fail deep inside the command with a message that does not name the flag
+    (``--rate 0`` as a resampler's ``dst_hz=0.0``), or stop a command at once and look like
+    success (``record --duration -1``)."""
+    bound = f"a number of {unit} > 0" if zero is None else f"a number of {unit} >= 0 (0 = {zero})"
 
     def convert(text: str) -> float:
         try:
             value = float(text)
         except (TypeError, ValueError):
-            raise OptionValueError(f"expected a number of {unit} > 0, got {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise OptionValueError(f"must be a number of {unit} > 0, got {text}")
+            raise OptionValueError(f"expected {bound}, got {text!r}") from None
+        if not (math.isfinite(value) and (value > 0 or (zero is not None and value == 0))):
+            raise OptionValueError(f"must be {bound}, got {text}")
         return value
 
-    convert.__name__ = f"number of {unit} > 0"  # named in --config errors
+    convert.__name__ = f"number of {unit} > 0" if zero is None else f"number of {unit} >= 0"  # named in --config errors
     return convert
 
 

@@ -109,35 +109,22 @@ class _Output:
                     self.pending.unlink(missing_ok=True)
 
 
-def _check_numbers(args: argparse.Namespace) -> bool:
-    """False after one line on stderr when ``--count``, ``--duration`` or ``--fsync`` is out of range."""
-    from .tap import check_stop_options
-
-    if not check_stop_options("record", args.count, args.duration):
-        return False
-    if math.isnan(args.fsync) or args.fsync < 0:
-        print(f"streamfix record: --fsync must be a number of seconds >= 0 (0 = every record), got {args.fsync:g}",
-              file=sys.stderr)
-        return False
-    return True
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from .config import add_config_argument
 
     add_config_argument(p, "record")
     p.add_argument("endpoint", help="endpoint to connect to, e.g. tcp://127.0.0.1:5556")
     p.add_argument("out", help="recording to write (.sfrec)")
-    from .options import add_list_argument
+    from .options import add_list_argument, int_at_least, positive_number
 
     add_list_argument(p, "--topic", metavar="PREFIX",
                       help="raw, live, clean, meta, KIND/STREAM or a raw prefix; several as 'a b', 'a,b' or a "
                            "repeated --topic (default: sf/, everything)")
-    p.add_argument("--count", type=int, default=None, help="stop after N frames")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--count", type=int_at_least(1), default=None, help="stop after N frames")
+    p.add_argument("--duration", type=positive_number("seconds"), default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--append", action="store_true", help="append to an existing recording (a torn tail is cut off)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing file")
-    p.add_argument("--fsync", type=float, default=1.0, metavar="S",
+    p.add_argument("--fsync", type=positive_number("seconds", zero="every record"), default=1.0, metavar="S",
                    help="fsync at most every S seconds (0 = every record; default %(default)s)")
     p.add_argument("--ack", action="store_true", help="print 'ack TOPIC SEQ' on stdout once each frame is in the file")
     p.add_argument("--bind", action="store_true", help="bind a PULL socket instead of connecting a SUB")
@@ -153,8 +140,6 @@ def run(args: argparse.Namespace) -> int:
     from ..transport.wire import SkeletonMessage, resolve_topic_arg, topic_prefix
     from ..transport.zmq_io import Subscriber
 
-    if not _check_numbers(args):
-        return 2
     topics = [resolve_topic_arg(t) for t in (args.topic or ["sf/"])]
     meta = topic_prefix("meta")
 

@@ -30,6 +30,7 @@ HELP = "run the cleaning service: raw frames in (ZeroMQ PULL, stdin or a recordi
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from .config import add_config_argument
+    from .options import int_at_least, positive_number
 
     add_config_argument(p, "serve")
     p.add_argument(
@@ -62,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="flush a stream that sent nothing for S seconds, so its last frames come out "
                    "on clean (0 = only at exit; default %(default)s)")
     p.add_argument("--stream-id", default=None, help="stream id for stdin/replay input (default: stdin / file name)")
-    p.add_argument("--sensor-rate", type=float, default=30.0,
+    p.add_argument("--sensor-rate", type=positive_number("Hz"), default=30.0,
                    help="frame rate (Hz) assumed for a stream no skeleton message describes (default %(default)s)")
     p.add_argument("--engine", default="streamfix", choices=("streamfix", "passthrough"),
                    help="per-stream engine; passthrough copies input to live/clean (baseline, default %(default)s)")
@@ -70,9 +71,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--solver-process", action="store_true",
                    help="solve each stream's windows in a child process (the worker thread waits without the "
                         "GIL, so the live path is not held up by the solve; same output)")
-    p.add_argument("--sndhwm", type=int, default=1000, help="PUB send high-water mark per subscriber (messages)")
-    p.add_argument("--linger-ms", type=int, default=2000, help="on exit, wait this long for queued messages to leave")
-    p.add_argument("--meta-interval", type=float, default=1.0, help="seconds between repeated skeleton messages")
+    p.add_argument("--sndhwm", type=int_at_least(0, "0 = no limit"), default=1000,
+                   help="PUB send high-water mark per subscriber (messages; 0 = no limit)")
+    p.add_argument("--linger-ms", type=int_at_least(-1, "-1 = wait forever"), default=2000,
+                   help="on exit, wait this long for queued messages to leave (-1 = forever)")
+    p.add_argument("--meta-interval", type=positive_number("seconds"), default=1.0,
+                   help="seconds between repeated skeleton messages")
     p.add_argument("--prior", default=None, metavar="PATH",
                    help="learned prior to use: a model card .json or a directory holding one, as written by "
                         "`streamfix train-prior --out DIR` (default: the shipped model)")
@@ -102,7 +106,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     lim.add_argument("--max-joint-rate", type=float, default=d.max_joint_rate, metavar="N",
                      help="sum of joints x sensor rate over tracked bodies (bounds the engines' memory; "
                      "default %(default)s)")
-    lim.add_argument("--max-rate", type=float, default=d.max_rate_hz, metavar="HZ",
+    lim.add_argument("--max-rate", type=positive_number("Hz"), default=d.max_rate_hz, metavar="HZ",
                      help="highest accepted sensor rate, Hz (default %(default)s)")
     lim.add_argument("--max-coordinate", type=float, default=d.max_coordinate_m, metavar="M",
                      help="joints with a coordinate beyond M metres are missing (default %(default)s)")
@@ -164,26 +168,15 @@ def _open_sinks(args: argparse.Namespace) -> list:
     return sinks
 
 
-def _check_numbers(args: argparse.Namespace) -> str | None:
-    """What is wrong with the numeric socket and rate options (named as the user typed them), or None.
-    Checked before anything starts: a rate of 0 would otherwise start the service and then
-    refuse every frame, and ZeroMQ reports a negative high-water mark as a failed bind."""
-    if not (math.isfinite(args.max_rate) and args.max_rate > 0):
-        return f"--max-rate must be a rate > 0 Hz, got {args.max_rate:g}"
+def _check_sensor_rate(args: argparse.Namespace) -> str | None:
+    """What is wrong with ``--sensor-rate`` against the accepted rates, or None. Checked before
+    anything starts: a rate the limits refuse would start the service and then refuse every frame."""
     from ..service.limits import Limits
 
     lowest = min(Limits().min_rate_hz, args.max_rate)  # as the service's limits are built below
-    if not (math.isfinite(args.sensor_rate) and lowest <= args.sensor_rate <= args.max_rate):
+    if not lowest <= args.sensor_rate <= args.max_rate:
         return (f"--sensor-rate must be a rate from {lowest:g} Hz to --max-rate ({args.max_rate:g} Hz), "
                 f"got {args.sensor_rate:g}")
-    if args.sndhwm < 0:
-        return f"--sndhwm must be >= 0 messages (0 = no limit), got {args.sndhwm}"
-    if args.linger_ms < -1:
-        return f"--linger-ms must be >= 0 ms (or -1: wait until every queued message has left), got {args.linger_ms}"
-    if not (math.isfinite(args.meta_interval) and args.meta_interval > 0):
-        return f"--meta-interval must be > 0 s, got {args.meta_interval:g}"
-    if not math.isfinite(args.status_interval):
-        return f"--status-interval must be a number of seconds, got {args.status_interval:g}"
     return None
 
 
@@ -217,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
     speed = check_speed("serve", args.speed)
     if speed is None:
         return 2
-    problem = _check_numbers(args)
+    problem = _check_sensor_rate(args)
     if problem:
         print(f"streamfix serve: {problem}", file=sys.stderr)
         return 2

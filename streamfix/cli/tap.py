@@ -30,13 +30,13 @@ HELP = "subscribe to a streamfix endpoint and print decoded messages (--json: on
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("endpoint", help="endpoint of a streamfix PUB to connect to, e.g. tcp://127.0.0.1:5556")
-    from .options import add_list_argument
+    from .options import add_list_argument, int_at_least, positive_number
 
     add_list_argument(p, "--topic", metavar="PREFIX",
                       help="raw, live, clean, meta, KIND/STREAM, or a raw topic prefix; several as 'a b', 'a,b' or a "
                            "repeated --topic (default: live and clean)")
-    p.add_argument("--count", type=int, default=None, help="stop after N messages")
-    p.add_argument("--duration", "--timeout", dest="duration", type=float, default=None, metavar="S",
+    p.add_argument("--count", type=int_at_least(1), default=None, help="stop after N messages")
+    p.add_argument("--duration", "--timeout", dest="duration", type=positive_number("seconds"), default=None, metavar="S",
                    help="stop after S seconds")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.add_argument("--bind", action="store_true",
@@ -44,18 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from .keys import add_curve_client_arguments
 
     add_curve_client_arguments(p)
-
-
-def check_stop_options(command: str, count: int | None, duration: float | None) -> bool:
-    """False after one line on stderr when ``--count`` (>= 1) or ``--duration`` (> 0 seconds)
-    is out of range: a count of 0 or a negative duration would stop at once and look like success."""
-    if count is not None and count < 1:
-        print(f"streamfix {command}: --count must be >= 1, got {count}", file=sys.stderr)
-        return False
-    if duration is not None and not (duration > 0 and math.isfinite(duration)):
-        print(f"streamfix {command}: --duration must be a number of seconds > 0, got {duration:g}", file=sys.stderr)
-        return False
-    return True
 
 
 def _num(x: float) -> float | None:
@@ -139,8 +127,6 @@ def run(args: argparse.Namespace) -> int:
     from ..transport.zmq_io import Subscriber
 
     topics = [resolve_topic_arg(t) for t in (args.topic or ["live", "clean"])]
-    if not check_stop_options("tap", args.count, args.duration):
-        return 2
 
     def on_error(topic: bytes, error) -> None:
         print(f"streamfix tap: skipped message on {topic.decode('ascii', 'replace')!r} ({error.reason}): {error}",

@@ -35,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--once", action="store_true", help="FILE: play once and exit at its end (default: loop)")
     p.add_argument("--engine", default="streamfix", choices=("streamfix", "passthrough"),
                    help="FILE: engine to clean with (default %(default)s)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="exit after S seconds")
+    from .options import positive_number
+
+    p.add_argument("--duration", type=positive_number("seconds"), default=None, metavar="S", help="exit after S seconds")
 
 
 def _is_endpoint(text: str) -> bool:
