@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 
 HELP = "run the cleaning service: raw frames in (ZeroMQ PULL, stdin or a recording), live/clean out on ZeroMQ PUB"
