@@ -99,7 +99,7 @@ def test_record_refuses_other_formats_and_survives_a_full_disk_with_a_readable_f
 def test_replay_with_nobody_listening_says_so_and_fails(shared_data):
     t0 = time.monotonic()
     r = _cli("replay", str(shared_data / "kinect_v2" / "Ges01_wavehand.csv"), "--to",
-             f"tcp://127.0.0.1:{free_port()}", "--speed", "0", "--timeout", "1")
+             f"tcp://127.0.0.1:{free_port()}", "--speed", "0", "--timeout", "1", "--wait", "1")
     assert r.returncode == 1 and "no receiver" in r.stderr, r.stderr
     assert "sent 154 frames" not in r.stderr
     assert time.monotonic() - t0 < 30

@@ -68,7 +68,7 @@ def test_curve_only_allowed_clients_receive_or_inject(tmp_path, shared_data):
                 pass
             rep = run_replay(path, sp.source, "--speed", "0", "--stream-id", "curve", *client)
             assert rep.returncode == 0, rep.stderr
-            bad = run_replay(path, sp.source, "--speed", "0", "--stream-id", "rogue", "--timeout", "2", *rogue)
+            bad = run_replay(path, sp.source, "--speed", "0", "--stream-id", "rogue", "--timeout", "2", "--wait", "2", *rogue)
             assert bad.returncode == 1 and "no receiver" in bad.stderr, bad.stderr
             out, err = tap.communicate(timeout=60)
             rogue_got = list(rogue_sub.receive(timeout_s=0.5))

@@ -37,7 +37,8 @@ def _serve(source, status=None, engine: str = "passthrough") -> tuple[Service, R
 
 
 def _read_all(source: StdinSource, timeout_s: float = 20.0) -> None:
-    """Wait until the reader thread has read every line (it runs ahead of the service)."""
+    """Start the reader thread and wait until it has read every line (ahead of the service)."""
+    source.start()
     deadline = time.monotonic() + timeout_s
     while source._thread.is_alive() and time.monotonic() < deadline:
         time.sleep(0.01)

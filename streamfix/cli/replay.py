@@ -7,18 +7,19 @@ stream's skeleton with a ``skeleton`` message (so a skeleton outside the registr
 a BVH hierarchy, decodes at the service). See :mod:`streamfix.service.playback`.
 
 Socket: a **PUSH socket that connects** to ``--to``, which is the PULL endpoint a
-``streamfix serve --source tcp://...`` binds. PUSH queues messages until the
-connection is up and blocks (rather than drops) at its high-water mark, so no frame
-is lost to ZeroMQ's slow-joiner effect even when the replay starts before the
-service; a slow service throttles the replay instead. On exit the socket lingers up
-to ``--linger-ms`` for queued frames to be delivered.
+``streamfix serve --source tcp://...`` binds. The replay waits (up to ``--wait``) for a
+receiver to connect before it starts its clock: started before the service, it would
+otherwise queue its first seconds and deliver them in one burst, which a live service
+sheds as too old. PUSH blocks (rather than drops) at its high-water mark, so no frame is
+lost to ZeroMQ's slow-joiner effect; a slow service throttles the replay instead. On
+exit the socket lingers up to ``--linger-ms`` for queued frames to be delivered.
 
 Timing: frame ``i`` is sent at ``start + (t_i - t_0) / speed`` on the monotonic clock
 (absolute schedule: no drift accumulates from sleep overshoot); ``--speed 0`` sends as
 fast as the socket takes them. ``--loop`` repeats the recording with continuing
 sequence numbers and sensor times, until interrupted (SIGINT/SIGTERM stop cleanly).
 
-Nobody listening: when no receiver ever connected, or none took a frame for
+Nobody listening: when no receiver connected within ``--wait`` seconds, or none took a frame for
 ``--timeout`` seconds (PUSH blocks at its high-water mark), the replay says so and exits
 1 instead of reporting frames as sent.
 """
@@ -51,6 +52,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--linger-ms", type=int_at_least(-1, "-1 = wait forever"), default=10000,
                    help="on exit, wait up to this long for queued frames to be delivered (default %(default)s; "
                         "-1 = forever)")
+    p.add_argument("--wait", type=positive_number("seconds"), default=60.0, metavar="S",
+                   help="wait up to S seconds for a receiver to connect before playing (default %(default)s; "
+                        "a service's first start after an install compiles its kernels first)")
     p.add_argument("--timeout", type=positive_number("seconds"), default=10.0, metavar="S",
                    help="give up (exit 1) when no receiver takes a frame for S seconds (default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="no summary line on stderr")
@@ -97,14 +101,18 @@ def run(args: argparse.Namespace) -> int:
     pub.socket.setsockopt(zmq.LINGER, int(args.linger_ms))
     pub.socket.setsockopt(zmq.SNDTIMEO, max(1, int(args.timeout * 1000)))
     peers = _PeerWatch(pub.socket, args.to)
-    pacer = Pacer(speed)
     sent = 0
     failed = None
     t_start = time.monotonic()
     try:
-        for stream_id, skeleton, rate_hz in playback.announce:
-            pub.announce(stream_id, skeleton, rate_hz)
-        for t_rel, frame in playback.frames(args.loop):
+        if not peers.wait(args.wait, lambda: stop["flag"]):
+            frames = iter(())  # nobody came (or a signal): nothing to send; reported below
+        else:
+            for stream_id, skeleton, rate_hz in playback.announce:
+                pub.announce(stream_id, skeleton, rate_hz)
+            frames = playback.frames(args.loop)
+        pacer = Pacer(speed)  # the clock starts once a receiver is there
+        for t_rel, frame in frames:
             wait = pacer.wait_time(t_rel)
             while wait > 0 and not stop["flag"]:
                 time.sleep(min(wait, 0.1))
@@ -156,6 +164,16 @@ class _PeerWatch:
             recv_monitor_message(self._mon)
             self._seen = True
         return self._seen
+
+    def wait(self, timeout_s: float, stopped) -> bool:
+        """Block until a receiver has connected (True), ``timeout_s`` passed or ``stopped()`` (False)."""
+        deadline = time.monotonic() + timeout_s
+        while not self.connected():
+            left = deadline - time.monotonic()
+            if left <= 0 or stopped():
+                return False
+            self._mon.poll(int(min(left, 0.1) * 1000) + 1)
+        return True
 
     def close(self) -> None:
         self._sock.disable_monitor()

@@ -213,8 +213,7 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"streamfix serve: {problem}", file=sys.stderr)
         return 2
-    try:  # checked now; the engine itself is built after the source is open (its imports take a while,
-        # and a source that cannot open, e.g. no camera attached, should say so at once)
+    try:  # checked now, before anything is built or opened
         seconds, frames = (None, None) if args.lookahead is None else parse_lookahead(args.lookahead)
         options = EngineOptions(
             window=args.window, hop=args.hop, lookahead=seconds, lookahead_frames=frames, threaded=not args.sync,
@@ -258,29 +257,30 @@ def run(args: argparse.Namespace) -> int:
     except (ImportError, ValueError, OSError) as exc:
         print(f"streamfix serve: {exc}", file=sys.stderr)
         return 2
-    ctx = zmq.Context.instance()
-    try:
-        source = open_source(spec, speed=speed, loop=args.loop, stream_id=args.stream_id, context=ctx,
-                             limits=limits, backlog=backlog, curve=curve)
-    except (FileNotFoundError, ValueError, RuntimeError, OSError) as exc:
-        print(f"streamfix serve: cannot open source: {exc}", file=sys.stderr)
-        return 2
-    except Exception as exc:  # zmq.ZMQError (address in use, bad endpoint)
-        print(f"streamfix serve: cannot open source {spec!r}: {exc}", file=sys.stderr)
-        return 2
+    # the engine is ready (imports, compiled kernels, the prior) before the source opens: a
+    # bound input socket or a stdin reader stamps frames as they arrive, and frames that waited
+    # for a first run's kernel compile (about 10 s after an install) were shed as too old
     try:
         make_engine = engine_factory(args.engine, options)
     except ValueError as exc:
-        source.close()
         if curve is not None:
             curve.stop()
         print(f"streamfix serve: bad engine settings: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # a solver process that cannot start (--solver-process)
-        source.close()
         if curve is not None:
             curve.stop()
         print(f"streamfix serve: cannot start the engine: {exc}", file=sys.stderr)
+        return 2
+    ctx = zmq.Context.instance()
+    try:
+        source = open_source(spec, speed=speed, loop=args.loop, stream_id=args.stream_id, context=ctx,
+                             limits=limits, backlog=backlog, curve=curve)
+    except Exception as exc:  # OSError, ValueError, RuntimeError; zmq.ZMQError (address in use, bad endpoint)
+        if curve is not None:
+            curve.stop()
+        what = "" if isinstance(exc, (FileNotFoundError, ValueError, RuntimeError, OSError)) else f" {spec!r}"
+        print(f"streamfix serve: cannot open source{what}: {exc}", file=sys.stderr)
         return 2
     try:
         publisher = ServicePublisher(

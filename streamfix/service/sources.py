@@ -78,7 +78,10 @@ class ZmqSource:
     """PULL socket bound at ``endpoint``; decodes wire messages (see module docstring).
 
     A daemon thread receives (so arrival times are true under load) into a
-    :class:`Backlog`; :meth:`poll` decodes on the caller's thread. Messages over
+    :class:`Backlog`; :meth:`poll` decodes on the caller's thread. The thread starts at the
+    first :meth:`poll` (or :meth:`start`): until the service takes input, messages wait in
+    the socket's queue (and the producers' ones: PUSH blocks, nothing is lost) instead of
+    ageing in the backlog, which would shed them as too old. Messages over
     ``limits.max_message_bytes`` are skipped before decoding (counted); ZeroMQ's
     ``MAXMSGSIZE`` (16 x that) disconnects a peer sending anything larger, so no single
     message can make the service allocate more. ``curve``: a
@@ -122,10 +125,14 @@ class ZmqSource:
         self._monitor = self.sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
         self._running = True
         self._thread = threading.Thread(target=self._receive, name="zmq-source", daemon=True)
-        self._thread.start()
 
     def describe(self) -> str:
         return f"zmq PULL bound at {self.endpoint}"
+
+    def start(self) -> None:
+        """Start receiving (idempotent; :meth:`poll` calls it)."""
+        if self._running and self._thread.ident is None:
+            self._thread.start()
 
     def _receive(self) -> None:
         zmq = self._zmq
@@ -171,6 +178,7 @@ class ZmqSource:
         return Announce(msg.stream_id, msg.skeleton, msg.rate_hz, registered=True)
 
     def poll(self, timeout_s: float) -> list[Item]:
+        self.start()
         got, shed = self.backlog.take(max(0.0, timeout_s), self._max_batch)
         items: list[Item] = [Shed(stream, n) for stream, n in shed.items()]
         items.extend(self._decode(parts, arrival, newest) for parts, arrival, _, _, newest in got)
@@ -178,6 +186,7 @@ class ZmqSource:
 
     def pending(self) -> tuple[int, float]:
         """Input waiting to be handled: (messages, age of the oldest in seconds)."""
+        self.start()
         return self.backlog.depth()
 
     def wake(self) -> None:
@@ -189,7 +198,8 @@ class ZmqSource:
         and the socket's queue still hold, one :class:`Shed` per stream."""
         self._running = False
         self.backlog.close()
-        self._thread.join(timeout=1.0)
+        if self._thread.ident is not None:
+            self._thread.join(timeout=1.0)
         counts = Counter(self.backlog.drop_all())
         zmq = self._zmq
         try:
@@ -213,7 +223,11 @@ class ZmqSource:
 
 
 class StdinSource:
-    """Lines from a text stream (stdin by default), read on a daemon thread."""
+    """Lines from a text stream (stdin by default), read on a daemon thread.
+
+    The thread starts at the first :meth:`poll` (or :meth:`start`): a line waits in the pipe
+    until the service takes input, so its arrival time is not stamped while the service starts.
+    """
 
     def __init__(self, stream=None, *, stream_id: str = "stdin", maxsize: int = 4096) -> None:
         self._stream = stream if stream is not None else sys.stdin
@@ -222,7 +236,11 @@ class StdinSource:
         self.exhausted = False
         self._seq = 0
         self._thread = threading.Thread(target=self._read, name="stdin-source", daemon=True)
-        self._thread.start()
+
+    def start(self) -> None:
+        """Start reading (idempotent; :meth:`poll` calls it)."""
+        if self._thread.ident is None:
+            self._thread.start()
 
     def describe(self) -> str:
         return "stdin (Kinect v2 CSV or JSON lines)"
@@ -255,6 +273,7 @@ class StdinSource:
             self._queue.put(None)
 
     def poll(self, timeout_s: float) -> list[Item]:
+        self.start()
         items: list[Item] = []
         try:
             first = self._queue.get(timeout=max(timeout_s, 0.0)) if timeout_s > 0 else self._queue.get_nowait()
