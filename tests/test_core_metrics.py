@@ -120,3 +120,18 @@ def test_seam_sums_compare_each_seam_frame_with_its_neighbourhood():
     assert s_n == o_n == int(seam[1:-1].sum())
     with pytest.raises(ValueError, match="seam mask"):
         seam_sums(d2, seam)
+
+
+def test_bone_cv_leaves_out_zero_length_links(shared_data):
+    # CMU BVH hierarchies hold zero-length links (LHipJoint-style): their std / mean is
+    # round-off over round-off and made a take's bone CV read 800 %
+    from streamfix.io import read_motion
+
+    m = read_motion(shared_data / "cmu_bvh" / "131_01.bvh")
+    bones = m.skeleton.bone_array
+    lengths = np.linalg.norm(m.positions[:, bones[:, 1]] - m.positions[:, bones[:, 0]], axis=2)
+    long = lengths.mean(axis=0) >= metrics.BONE_CV_MIN_LENGTH_M
+    assert not long.all(), "the take has zero-length links"
+    cv = metrics.bone_length_cv(m.positions, bones)
+    assert cv == pytest.approx(metrics.bone_length_cv(m.positions, bones[long])) and cv < 1e-3
+    assert np.isnan(metrics.bone_length_cv(m.positions, bones[~long]))

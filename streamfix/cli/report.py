@@ -15,6 +15,7 @@ Needs matplotlib (``pip install streamfix[report]``).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from .options import add_list_argument
@@ -50,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError, KeyError) as exc:
         print(f"streamfix report: {exc}", file=sys.stderr)
         return 1
+    cv = (f", bone CV {summary['bone_cv_raw_pct']:.2f} -> {summary['bone_cv_clean_pct']:.2f} %"
+          if math.isfinite(summary["bone_cv_raw_pct"]) else "")  # a marker set has no bones
     print(f"streamfix report: wrote {args.out} ({data.name}: jitter {summary['jitter_raw_mm']:.3f} -> "
-          f"{summary['jitter_clean_mm']:.3f} mm/frame^2, bone CV {summary['bone_cv_raw_pct']:.2f} -> "
-          f"{summary['bone_cv_clean_pct']:.2f} %)", file=sys.stderr)
+          f"{summary['jitter_clean_mm']:.3f} mm/frame^2{cv})", file=sys.stderr)
     return 0

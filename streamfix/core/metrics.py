@@ -78,8 +78,14 @@ def jitter(positions: np.ndarray) -> float:
     return _nanmean(np.linalg.norm(d2, axis=-1))
 
 
+BONE_CV_MIN_LENGTH_M = 1e-3
+"""Bones whose mean length is below this (m) are left out of :func:`bone_length_cv`: a BVH's
+zero-length link has no length to vary, and its std / mean is round-off over round-off."""
+
+
 def bone_length_cv(positions: np.ndarray, bones: np.ndarray, frames: np.ndarray | None = None) -> float:
-    """Mean over bones of std_t(l) / mean_t(l); optionally only over ``frames`` ``(T,)`` bool."""
+    """Mean over bones of std_t(l) / mean_t(l); optionally only over ``frames`` ``(T,)`` bool.
+    Bones shorter than :data:`BONE_CV_MIN_LENGTH_M` on average do not count (NaN if none is left)."""
     lengths = bone_lengths(positions, bones)
     if frames is not None:
         lengths = lengths[np.asarray(frames, dtype=bool)]
@@ -87,8 +93,9 @@ def bone_length_cv(positions: np.ndarray, bones: np.ndarray, frames: np.ndarray 
         return float("nan")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        cv = np.nanstd(lengths, axis=0) / np.nanmean(lengths, axis=0)
-    return _nanmean(cv)
+        mean = np.nanmean(lengths, axis=0)
+        cv = np.nanstd(lengths, axis=0) / mean
+    return _nanmean(np.where(mean >= BONE_CV_MIN_LENGTH_M, cv, np.nan))
 
 
 def inferred_bone_asymmetry(
