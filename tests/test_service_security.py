@@ -47,6 +47,11 @@ def test_curve_only_allowed_clients_receive_or_inject(tmp_path, shared_data):
     path = shared_data / "kinect_v2" / "Ges01_wavehand.csv"
     with serve(tmp_path, "--curve-secret", str(keys / "server.key_secret"), "--curve-clients", str(allowed),
                "--engine", "passthrough") as sp:
+        # the hint it prints to watch the output carries the keys (without them a tap waits silently)
+        deadline = time.monotonic() + 20
+        while "watch it:" not in sp.stderr and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert f"--curve-server {keys / 'server.key'}" in sp.stderr, sp.stderr
         ctx = zmq.Context.instance()
         plain_sub = ctx.socket(zmq.SUB)
         plain_sub.setsockopt(zmq.SUBSCRIBE, b"")

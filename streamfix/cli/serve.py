@@ -336,8 +336,14 @@ def run(args: argparse.Namespace) -> int:
             print(f"streamfix serve: --view: cannot serve the viewer on port {args.view}: {exc}", file=sys.stderr)
             return 2
     watch = f"open {viewer.url} in a browser, or run" if viewer is not None else "run"
-    log.info("watch it: %s `streamfix tap %s --topic clean --count 5 --json` (or `streamfix view %s`); "
-             "stop it: Ctrl-C", watch, publisher.endpoint, publisher.endpoint)
+    if curve is None:
+        log.info("watch it: %s `streamfix tap %s --topic clean --count 5 --json` (or `streamfix view %s`); "
+                 "stop it: Ctrl-C", watch, publisher.endpoint, publisher.endpoint)
+    else:  # a client without keys cannot connect (it would wait silently); the viewer has no CURVE client
+        public = args.curve_secret[: -len("_secret")] if args.curve_secret.endswith("_secret") else "SERVER.key"
+        log.info("watch it: %s `streamfix tap %s --topic clean --count 5 --json --curve-secret CLIENT.key_secret "
+                 "--curve-server %s` (a client key from `streamfix keys`); stop it: Ctrl-C", watch,
+                 publisher.endpoint, public)
     try:
         code = service.run(drain_timeout_s=args.drain_timeout)
         if source.exhausted:
