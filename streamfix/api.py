@@ -73,7 +73,7 @@ def _skeleton(skeleton: str | Skeleton) -> Skeleton:
     )
 
 
-def _motion(positions, rate_hz: float, skeleton: Skeleton, confidence) -> Motion:
+def _motion(positions, rate_hz: float, skeleton: Skeleton, confidence, timestamps=None) -> Motion:
     """Check shapes and units up front; errors name what was expected and what arrived."""
     try:
         pos = np.array(positions, dtype=np.float64)
@@ -102,7 +102,18 @@ def _motion(positions, rate_hz: float, skeleton: Skeleton, confidence) -> Motion
             raise ValueError(f"confidence must be (T, J) = {pos.shape[:2]}, got shape {conf.shape}")
         if not np.isfinite(conf).all() or conf.min() < 0 or conf.max() > 1:
             raise ValueError("confidence must lie in [0, 1] (1 tracked, 0.5 inferred, 0 missing)")
-    return Motion.from_positions(pos, skeleton, rate, confidence=conf)
+    motion = Motion.from_positions(pos, skeleton, rate, confidence=conf)
+    if timestamps is not None:
+        try:
+            times = np.array(timestamps, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError("timestamps must be a numeric (T,) array in seconds") from None
+        if times.shape != (pos.shape[0],):
+            raise ValueError(f"timestamps must be (T,) = ({pos.shape[0]},) seconds, got shape {times.shape}")
+        if not np.isfinite(times).all() or (np.diff(times) <= 0).any():
+            raise ValueError("timestamps must be finite seconds, increasing from frame to frame")
+        motion.timestamps = times
+    return motion
 
 
 @contextmanager
@@ -129,6 +140,7 @@ def clean(
     mode: str = "offline",
     prior: str | Path | None = None,
     sensor_bias: str | Path = "auto",
+    timestamps: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Clean ``(T, J, 3)`` joint positions (metres, NaN = missing) sampled at ``rate_hz`` (Hz).
 
@@ -137,7 +149,7 @@ def clean(
     positions:
         ``(T, J, 3)`` metres; a NaN coordinate marks the joint missing in that frame.
     rate_hz:
-        Frame rate in Hz; frames are taken as uniformly spaced.
+        Nominal frame rate in Hz; frames are taken as uniformly spaced unless ``timestamps`` are given.
     skeleton:
         A registered skeleton name or a :class:`~streamfix.skeletons.Skeleton` with ``J`` joints.
     confidence:
@@ -153,6 +165,11 @@ def clean(
         The learned pose-dependent sensor bias removed from the output (``--sensor-bias``
         of ``clean`` / ``serve``): ``"auto"`` (the model shipped for the skeleton, if any),
         ``"off"``, or a model file written by ``streamfix train-bias``.
+    timestamps:
+        Optional ``(T,)`` sensor times in seconds (a recording's ``Motion.timestamps``). A
+        sensor drops frames; with its times the engine fills them as ``clean`` and ``serve``
+        do (the result then equals theirs), without them every frame is one period after
+        the last and a drop is a jump.
 
     Returns
     -------
@@ -162,7 +179,7 @@ def clean(
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(repr(m) for m in MODES)}; got {mode!r}")
-    motion = _motion(positions, rate_hz, _skeleton(skeleton), confidence)
+    motion = _motion(positions, rate_hz, _skeleton(skeleton), confidence, timestamps)
     from .streaming.config import schedule_config
 
     bias = str(sensor_bias)
