@@ -25,6 +25,32 @@ __all__ = [
 ]
 
 
+def _directed_cycle(n_joints: int, bones: tuple[tuple[int, int], ...]) -> list[int]:
+    """The joints of one cycle of (parent, child) links, in order, or [] (Kahn's algorithm:
+    joints left once every root-reachable one is ordered lie on or below a cycle)."""
+    children: list[list[int]] = [[] for _ in range(n_joints)]
+    parents_left = [0] * n_joints
+    for a, b in bones:
+        children[a].append(b)
+        parents_left[b] += 1
+    ready = [j for j in range(n_joints) if parents_left[j] == 0]
+    while ready:
+        j = ready.pop()
+        for c in children[j]:
+            parents_left[c] -= 1
+            if parents_left[c] == 0:
+                ready.append(c)
+    left = {j for j in range(n_joints) if parents_left[j] > 0}
+    if not left:
+        return []
+    parent_in_left = {b: a for a, b in bones if a in left and b in left}
+    j, seen = next(iter(left)), []
+    while j not in seen:  # walk up parents inside the remainder until a joint repeats
+        seen.append(j)
+        j = parent_in_left[j]
+    return seen[seen.index(j):][::-1]
+
+
 @dataclass(frozen=True)
 class Skeleton:
     """A named joint layout and the bones that connect its joints.
@@ -38,7 +64,8 @@ class Skeleton:
         One name per joint, in array order.
     bones:
         ``(parent, child)`` joint-index pairs. Need not form a tree (MediaPipe's
-        connection graph does not), but for tree skeletons parents come first.
+        connection graph does not: a joint may have two parents), but the links may not
+        form a cycle (ValueError naming it); for tree skeletons parents come first.
     """
 
     name: str
@@ -59,6 +86,11 @@ class Skeleton:
                     f"skeleton {self.name!r}: bone ({a}, {b}) does not join two of its "
                     f"{len(names)} joints"
                 )
+        cycle = _directed_cycle(len(names), bones)
+        if cycle:
+            path = " -> ".join(names[j] for j in cycle + cycle[:1])
+            raise ValueError(f"skeleton {self.name!r}: its (parent, child) bones form a cycle ({path}); "
+                             "every chain of parents must end at a root")
         object.__setattr__(self, "_index", {n: i for i, n in enumerate(names)})
 
     @property

@@ -64,6 +64,15 @@ def test_bad_bone_rejected():
         Skeleton("bad", ("a", "b"), ((0, 2),))
 
 
+def test_a_cycle_of_parent_links_is_refused_by_name_but_a_joint_may_have_two_parents():
+    # a directed cycle has no root: the engine failed on it only at its first window
+    with pytest.raises(ValueError, match=r"form a cycle \(b -> c -> a -> b\)"):
+        Skeleton("loop", ("a", "b", "c"), ((0, 1), (1, 2), (2, 0)))
+    with pytest.raises(ValueError, match="cycle"):
+        Skeleton("tail", ("r", "a", "b", "c"), ((0, 1), (1, 2), (2, 3), (3, 1)))
+    assert Skeleton("diamond", ("a", "b", "c", "d"), ((0, 1), (0, 2), (1, 3), (2, 3))).n_bones == 4
+
+
 def test_skeleton_dict_round_trip():
     assert Skeleton.from_dict(KINECT_V2.to_dict()) == KINECT_V2
 
