@@ -103,3 +103,23 @@ def test_replay_with_nobody_listening_says_so_and_fails(shared_data):
     assert r.returncode == 1 and "no receiver" in r.stderr, r.stderr
     assert "sent 154 frames" not in r.stderr
     assert time.monotonic() - t0 < 30
+
+
+def test_clean_interrupted_while_writing_leaves_the_old_output_whole(shared_data, tmp_path, monkeypatch):
+    # the output is written beside OUT and renamed: a Ctrl-C (or a crash) mid-write never leaves half a file
+    import streamfix.io
+    from streamfix.cli import main
+
+    out = tmp_path / "wave.clean.csv"
+    out.write_text("the previous cleaning\n")
+
+    def torn_write(motion, path, *a, **kw):
+        with open(path, "w") as f:
+            f.write("half a fi")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(streamfix.io, "write_motion", torn_write)
+    code = main(["clean", str(shared_data / "kinect_v2" / "Ges01_wavehand.csv"), str(out), "--overwrite", "--quiet"])
+    assert code == 130
+    assert out.read_text() == "the previous cleaning\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["wave.clean.csv"], "no partial file left behind"

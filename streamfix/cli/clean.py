@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -194,13 +195,20 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
     source, cleaned, metrics, notes, gapfilled = (
         result.source, result.motion, result.metrics, result.notes, result.gapfilled)
+    from ..archive import partial_path
+
+    tmp = partial_path(args.output)  # written beside OUT, then renamed: OUT is never half written
     try:
-        write_motion(cleaned, args.output)
-        if not Path(args.output).is_file() or Path(args.output).stat().st_size == 0:
+        write_motion(cleaned, tmp)
+        if not tmp.is_file() or tmp.stat().st_size == 0:
             raise OSError(f"{args.output}: the writer reported success but no file was written")
+        os.replace(tmp, args.output)
     except (OSError, ValueError) as exc:
-        print(f"streamfix clean: cannot write {args.output}: {exc}", file=sys.stderr)
+        print(f"streamfix clean: cannot write {args.output}: {str(exc).replace(str(tmp), str(args.output))}",
+              file=sys.stderr)
         return 1
+    finally:  # also on Ctrl-C while writing
+        tmp.unlink(missing_ok=True)
     if metrics.get("solver_errors", 0):  # a partly failed cleaning is said even with --quiet
         print(f"streamfix clean: warning: {metrics['solver_errors']} window(s) failed to solve "
               f"(first: {metrics.get('first_solver_error')})", file=sys.stderr)
