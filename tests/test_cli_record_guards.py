@@ -148,3 +148,15 @@ def test_numbers_that_would_stop_at_once_are_refused(tmp_path, capsys, command, 
     err = capsys.readouterr().err
     assert exc.value.code == 2 and f"streamfix {command}: error:" in err and option in err and message in err
     assert not out.exists()
+
+
+def test_a_recorder_that_got_no_frame_says_so_and_leaves_no_empty_recording(old_recording, tmp_path):
+    # nothing publishes on this port: --duration ends the run with no frame in the file
+    new = tmp_path / "new.sfrec"
+    r = _record("tcp://127.0.0.1:9", str(new), "--duration", "1")
+    assert r.returncode == 1 and "no frame received" in r.stderr and "it was not created" in r.stderr, r.stderr
+    assert not new.exists()
+    path, before = old_recording
+    r = _record("tcp://127.0.0.1:9", str(path), "--overwrite", "--duration", "1")
+    assert r.returncode == 1 and f"{path} is left as it was" in r.stderr, r.stderr
+    assert path.read_bytes() == before and _names(tmp_path) == ["take.sfrec"]

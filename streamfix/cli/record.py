@@ -25,6 +25,8 @@ name at the first record (or at a clean stop): the old recording is kept until t
 holds data, and the crash-safety promise above holds from then on. A failed write (disk
 full) prints one line and exits 1; the file then holds every record acknowledged before
 the error (an old recording that was to be overwritten is kept if no record was written).
+A run that received no frame (nothing published, a wrong topic) says so and exits 1,
+leaving no empty recording: a file it created is removed, one it was to overwrite is kept.
 """
 from __future__ import annotations
 
@@ -56,6 +58,7 @@ class _Output:
 
         self.path = Path(path)
         self.pending: Path | None = None  # the temporary file, until it takes OUT's name
+        self.created = False  # OUT did not exist before this run (removed again if no frame came)
         if overwrite and not append and self.path.exists():
             self.pending = partial_path(self.path)
             try:
@@ -75,11 +78,13 @@ class _Output:
                     with contextlib.suppress(OSError):
                         self.path.unlink()
                 raise
+            self.created = not existed
 
-    def write(self, topic: bytes, payload: bytes, recv_time_ns: int) -> None:
-        """Append one record; the first one of an overwrite moves the new file into OUT's place."""
+    def write(self, topic: bytes, payload: bytes, recv_time_ns: int, frame: bool = True) -> None:
+        """Append one record; the first frame of an overwrite moves the new file into OUT's place
+        (a skeleton message alone does not: a recording without frames replaces nothing)."""
         self.writer.write(topic, payload, recv_time_ns)
-        if self.pending is not None:
+        if frame and self.pending is not None:
             self.commit()
 
     def commit(self) -> None:
@@ -96,8 +101,9 @@ class _Output:
             finally:
                 os.close(fd)
 
-    def close(self, keep: bool) -> None:
-        """Close the file; a temporary file not yet renamed takes OUT's name when ``keep``, else is removed."""
+    def close(self, keep: bool, empty: bool = False) -> None:
+        """Close the file; a temporary file not yet renamed takes OUT's name when ``keep``, else is
+        removed; a file this run created is removed when ``empty`` (no frame was written to it)."""
         try:
             self.writer.close()
         finally:
@@ -106,6 +112,8 @@ class _Output:
                     self.commit()
                 else:
                     self.pending.unlink(missing_ok=True)
+            elif self.created and empty:
+                self.path.unlink(missing_ok=True)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -205,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
                     if last_meta.get(msg.stream_id) == key:
                         continue  # a periodic repeat: already in the file
                     last_meta[msg.stream_id] = key
-                    out.write(rec.topic, rec.payload, rec.recv_time_ns)
+                    out.write(rec.topic, rec.payload, rec.recv_time_ns, frame=False)
                     continue
                 if not any(rec.topic.startswith(t) for t in topics):
                     continue
@@ -224,16 +232,22 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-        kept_old = out.pending is not None and not ended  # nothing of this run reached OUT
+        kept_old = out.pending is not None and not (ended and frames)  # nothing of this run reached OUT
+        removed = out.created and not frames
         try:
-            out.close(keep=ended)
+            out.close(keep=ended and frames > 0, empty=not frames)
         except OSError as exc:
             failed = failed or f"closing {args.out} failed after {frames} frames: {exc.strerror or exc}"
         sub.close()
     if failed:
-        where = (f"{args.out} is left as it was" if kept_old
+        where = (f"{args.out} is left as it was" if kept_old else "it was not created" if removed
                  else "the file holds every frame acknowledged before the error")
         print(f"streamfix record: {failed}; {where}", file=sys.stderr)
+        return 1
+    if not frames:  # nothing came: say so, and leave no empty recording in OUT's place
+        where = ("it was not created" if removed else f"{args.out} is left as it was" if kept_old
+                 else f"{args.out} holds no new frame")
+        print(f"streamfix record: no frame received from {args.endpoint} ({reason}); {where}", file=sys.stderr)
         return 1
     if not args.quiet:
         c = sub.counters
