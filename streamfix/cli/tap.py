@@ -162,10 +162,14 @@ def run(args: argparse.Namespace) -> int:
     finally:
         sub.close()
     c = sub.counters
-    bad = {k: v for k, v in c.items() if k not in ("received", "frames", "skeletons", "malformed", "ignored_type")}
+    # the malformed count by reason (not the topics a PULL socket received and the filter left out)
+    bad = {k: v for k, v in c.items()
+           if k not in ("received", "frames", "skeletons", "malformed", "ignored_type", "filtered")}
+    filtered = f", {c['filtered']} on other topics" if c.get("filtered") else ""
     print(
         f"streamfix tap: {printed} printed, {c['frames']} frames, {c['skeletons']} skeleton messages, "
-        f"{c['malformed']} malformed{' ' + json.dumps(bad) if bad else ''}, {c['ignored_type']} unknown type",
+        f"{c['malformed']} malformed{' ' + json.dumps(bad) if bad else ''}, {c['ignored_type']} unknown type"
+        f"{filtered}",
         file=sys.stderr,
     )
     if args.count is not None and printed < args.count:
