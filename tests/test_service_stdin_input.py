@@ -31,7 +31,7 @@ def csv_lines(shared_data) -> list[str]:
 def _serve(source, status=None, engine: str = "passthrough") -> tuple[Service, RecordingPublisher]:
     pub = RecordingPublisher()
     svc = Service(source, pub, engine_factory(engine, EngineOptions(threaded=False)), status_interval_s=0,
-                  status_stream=status if status is not None else io.StringIO())
+                  status_stream=status if status is not None else io.StringIO(), status_at_exit=True)
     assert svc.run() == 0
     return svc, pub
 
@@ -112,7 +112,7 @@ def test_frames_out_of_order_are_skipped_counted_logged_and_shown(shared_data, c
     assert svc.m.late.value() == 1 and svc.m.restarts.value(cause="clock_reset") == 0
     assert any("out of order" in r.getMessage() for r in caplog.records)
     lines = status.getvalue().splitlines()
-    assert len(lines) == 1 and "late 1" in lines[0], "--status-interval 0: one status line, at exit"
+    assert len(lines) == 1 and "late 1" in lines[0], "serve --status-interval 0: one status line, at exit"
 
 
 @pytest.mark.parametrize("option, value", [("--sensor-rate", "0"), ("--sensor-rate", "nan"), ("--max-rate", "0"),

@@ -300,6 +300,7 @@ def run(args: argparse.Namespace) -> int:
             metrics_port=args.metrics_port,
             metrics_host=args.metrics_host,
             status_interval_s=args.status_interval,
+            status_at_exit=True,  # --status-interval 0: only at exit (its help)
             start_delay_s=args.start_delay,
             idle_timeout_s=args.idle_timeout,
             flush_timeout_s=args.flush_timeout,

@@ -25,8 +25,8 @@ their own daemon threads; the engine may solve windows on its own worker):
    waited for the loop to block (``benchmarks/bench_service.py`` measures the effect:
    many streams arriving together on one core).
 3. The skeleton message of every stream is repeated each ``meta_interval_s``; a
-   one-line status goes to stderr every ``status_interval_s`` and once at exit (0: only at
-   exit; negative: never).
+   one-line status goes to stderr every ``status_interval_s`` (0: never) and once at exit
+   (when the interval is positive, or ``status_at_exit``: ``serve --status-interval 0``).
 
 Containment: nothing a producer sends can raise out of the loop. Messages over a
 resource limit (:mod:`.limits`) are counted under ``streamfix_limit_hits_total{limit}``
@@ -261,6 +261,7 @@ class Service:
         metrics_host: str = "127.0.0.1",
         status_interval_s: float = 5.0,
         status_stream=None,
+        status_at_exit: bool = False,
         max_log_per_s: int = 20,
         flush_timeout_s: float = 10.0,
         start_delay_s: float = 0.0,
@@ -282,6 +283,7 @@ class Service:
         if metrics_port is not None:
             self.metrics_server = MetricsServer(self.m.registry, metrics_port, metrics_host).start()
         self.status_interval_s = float(status_interval_s)
+        self.status_at_exit = bool(status_at_exit) or self.status_interval_s > 0
         self.status_stream = status_stream if status_stream is not None else sys.stderr
         self.streams: dict[str, _Stream] = {}
         # announced layouts, scoped per stream (shared with a ZeroMQ source, which decodes with them)
@@ -735,7 +737,7 @@ class Service:
             self._flush()
         finally:
             self._sync_counters()
-            self._status(force=self.status_interval_s >= 0)  # 0: only this one, at exit
+            self._status(force=self.status_at_exit)
             self.close()
         return 0
 
