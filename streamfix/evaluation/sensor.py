@@ -227,19 +227,20 @@ def format_table(records: list[dict]) -> str:
     summary = summarise(records)
     methods = list(dict.fromkeys(r["method"] for r in records if r.get("protocol") == "sensor"))
     kinds = [k for k in SCORED_KINDS if k in summary]
+    w = max([15] + [len(m) + 2 for m in methods])  # a column fits its method's name ("streamfix_serve")
     lines = []
     for key, title in (("err_m", "all joint-frames"), ("err_corrupted_m", "corrupted joint-frames"),
                        ("err_clean_m", "uncorrupted joint-frames (collateral damage)")):
         lines.append(f"mean joint error, mm, {title}")
-        lines.append(f"{'kind':<9}" + "".join(f"{m:>15}" for m in methods))
+        lines.append(f"{'kind':<9}" + "".join(f"{m:>{w}}" for m in methods))
         for kind in kinds:
-            lines.append(f"{kind:<9}" + "".join(f"{_mm(summary[kind].get(m, {}).get(key)):>15}" for m in methods))
+            lines.append(f"{kind:<9}" + "".join(f"{_mm(summary[kind].get(m, {}).get(key)):>{w}}" for m in methods))
         lines.append("")
     seam = {m: summarise([dict(r, kind="all") for r in records if r.get("protocol") == "sensor"])["all"][m]["seam_ratio"]
             for m in methods}
     lines.append("seam ratio (jitter next to window hand-overs / within a hop of them), all kinds")
-    lines.append(" " * 9 + "".join(f"{m:>15}" for m in methods))
-    lines.append(" " * 9 + "".join(f"{'-' if seam[m] is None else f'{seam[m]:.3f}':>15}" for m in methods))
+    lines.append(" " * 9 + "".join(f"{m:>{w}}" for m in methods))
+    lines.append(" " * 9 + "".join(f"{'-' if seam[m] is None else f'{seam[m]:.3f}':>{w}}" for m in methods))
     return "\n".join(lines)
 
 
