@@ -31,9 +31,8 @@
     metres in the protocol's camera axes (:mod:`streamfix.io.depthai_keypoints`).
     :class:`DepthaiSource` also reads any host queue of ``SpatialImgDetections``.
 ``azure-kinect``
-    Live Azure Kinect capture needs a Python binding of Microsoft's Sensor and Body
-    Tracking SDKs (extra ``azure-kinect``); it is not built in yet, so this says how to
-    get the same data through a file: record with ``k4arecorder``, export with the Body
+    Live Azure Kinect capture (a Python binding of Microsoft's Sensor and Body Tracking
+    SDKs) is not built in yet, so this says how to get the same data through a file: record with ``k4arecorder``, export with the Body
     Tracking SDK's ``offline_processor`` and serve the JSON (``--source take.json``,
     :mod:`streamfix.io.azure_kinect`).
 
@@ -425,14 +424,9 @@ def open_azure_kinect_source(spec: str):
     """``--source azure-kinect``: always a RuntimeError saying what is missing and what works today."""
     via_file = ("record with k4arecorder, export the bodies with the Body Tracking SDK's offline_processor "
                 "and serve the JSON file: --source take.json")
-    try:
-        import pykinect_azure  # noqa: F401  (the optional binding: pip install 'streamfix[azure-kinect]')
-    except ImportError:
-        raise RuntimeError(
-            f"--source {spec} needs the pykinect_azure binding and Microsoft's Azure Kinect Sensor and Body "
-            f"Tracking SDKs (pip install 'streamfix[azure-kinect]'); or {via_file}"
-        ) from None
-    raise RuntimeError(f"--source {spec}: live capture through pykinect_azure is not built in yet; {via_file}")
+    # one message whether the optional binding is installed or not: installing it does not
+    # make live capture work (the capture loop is not built in), so it is not suggested
+    raise RuntimeError(f"--source {spec}: live Azure Kinect capture is not built in yet; {via_file}")
 
 
 def default_replay_file(project_root: Path | None = None) -> Path:
