@@ -80,3 +80,9 @@ def test_replay_config_value_out_of_range_names_the_key(shared_data, tmp_path, c
     config.write_text("[replay]\nsndhwm = -1\n")
     assert main(["replay", str(shared_data / CSV), "--config", str(config)]) == 2
     assert "[replay] sndhwm: -1 is not a valid integer >= 0" in capsys.readouterr().err
+
+
+def test_clean_into_a_directory_says_it_is_one(shared_data, tmp_path, capsys):
+    assert main(["clean", str(shared_data / CSV), str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path} is a directory" in err and "extension" not in err

@@ -30,6 +30,9 @@ def check_output(
     """
     out = Path(path)
     formats = tuple(formats)
+    if out.is_dir():
+        raise ValueError(f"{out} is a directory; the output is a file ending in {', '.join(formats)}"
+                         " (a folder of recordings is cleaned with streamfix clean DIR OUT_DIR)")
     if out.suffix.lower() not in formats:
         raise ValueError(f"{out}: cannot write {out.suffix or 'a file without extension'}; "
                          f"the output must end in {', '.join(formats)}")
