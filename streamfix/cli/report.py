@@ -18,7 +18,7 @@ import argparse
 import math
 import sys
 
-from .options import add_list_argument
+from .options import add_list_argument, positive_number
 
 HELP = "plot an offline cleaning (trajectories, bone lengths, jitter spectrum, recovered joints) to HTML or PNG"
 
@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                       help="joints whose trajectories to plot, as 'a b' or 'a,b' (default: the two that move most)")
     p.add_argument("--reference", default=None, metavar="FILE.npz:KEY",
                    help="overlay this UI-PRMD repetition's optical reference (a FILE.npz:KEY input brings its own)")
-    p.add_argument("--rate", type=float, default=None, metavar="HZ", help="resample IN to HZ first (default: native)")
+    p.add_argument("--rate", type=positive_number("Hz"), default=None, metavar="HZ", help="resample IN to HZ first (default: native)")
 
 
 def run(args: argparse.Namespace) -> int:
