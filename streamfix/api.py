@@ -47,6 +47,7 @@ from typing import Iterator
 
 import numpy as np
 
+from .core.units import units_problem
 from .motion import Motion
 from .skeletons import Skeleton, get_skeleton
 
@@ -102,6 +103,9 @@ def _motion(positions, rate_hz: float, skeleton: Skeleton, confidence, timestamp
             raise ValueError(f"confidence must be (T, J) = {pos.shape[:2]}, got shape {conf.shape}")
         if not np.isfinite(conf).all() or conf.min() < 0 or conf.max() > 1:
             raise ValueError("confidence must lie in [0, 1] (1 tracked, 0.5 inferred, 0 missing)")
+    wrong_units = units_problem(pos, skeleton.bone_array)
+    if wrong_units:
+        raise ValueError(f"positions must be in metres: {wrong_units}")
     motion = Motion.from_positions(pos, skeleton, rate, confidence=conf)
     if timestamps is not None:
         try:

@@ -29,6 +29,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from .core.units import units_problem
 from .motion import Motion
 from .streaming.engine import EngineConfig
 
@@ -65,13 +66,17 @@ def clean_recording(
 
     ``config`` None = :meth:`EngineConfig.for_files` at the motion's rate. ``gapfill`` False skips
     the gap filler; ``training``: reference takes for it (files / directories; a note says
-    they went unused on a skeleton with bones). Raises
+    they went unused on a skeleton with bones). Raises ValueError when the positions cannot
+    be metres (:func:`streamfix.core.units.units_problem`: millimetres by mistake), and
     ``ValueError`` / ``OSError`` from the gap filler with a message saying so, and
     :class:`~streamfix.streaming.offline.WindowSolverError` when no window solved; windows
     that failed among solved ones are counted in ``metrics['solver_errors']``.
     """
     from .streaming.offline import clean_motion
 
+    wrong_units = units_problem(motion.positions, motion.skeleton.bone_array)
+    if wrong_units:
+        raise ValueError(f"{motion.meta.get('source', 'the recording')}: positions must be in metres: {wrong_units}")
     cfg = config if config is not None else EngineConfig.for_files(motion.rate_hz)
     source = motion
     notes: list[str] = []

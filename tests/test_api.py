@@ -168,3 +168,18 @@ def test_custom_skeleton_with_prior_path_cleans_and_restores_default(wave, tmp_p
     with pytest.raises((OSError, ValueError)):
         streamfix.clean(wave.positions, wave.rate_hz, "kinect_v2", prior=tmp_path / "missing.json")
     assert runtime._DEFAULT_PATH == before
+
+
+def test_positions_in_millimetres_by_mistake_are_refused_but_a_far_origin_is_not(wave, tmp_path):
+    # every stage is tuned in metres: 1000x too big, each sample looked like an outlier and the
+    # output was metres off, silently
+    for scale, unit in ((1000.0, "millimetres"), (100.0, "centimetres")):
+        with pytest.raises(ValueError, match=f"metres: the median bone is .* {unit}|look like millimetres"):
+            streamfix.clean(wave.positions * scale, wave.rate_hz, "kinect_v2")
+    far = wave.positions[:60] + np.array([1000.0, 0.0, -1000.0])  # a world origin 1.4 km away is still metres
+    cleaned, _ = streamfix.clean(far, wave.rate_hz, "kinect_v2", mode="live")
+    assert np.isfinite(cleaned[np.isfinite(far).all(axis=2)]).all()
+    src = tmp_path / "mm.csv"
+    write_motion(Motion(wave.positions * 1000.0, wave.confidence, wave.timestamps, wave.rate_hz, wave.skeleton), src)
+    assert main(["clean", str(src), str(tmp_path / "out.csv")]) == 1
+    assert not (tmp_path / "out.csv").exists()
