@@ -32,9 +32,9 @@
     :class:`DepthaiSource` also reads any host queue of ``SpatialImgDetections``.
 ``azure-kinect``
     Live Azure Kinect capture (a Python binding of Microsoft's Sensor and Body Tracking
-    SDKs) is not built in yet, so this says how to get the same data through a file: record with ``k4arecorder``, export with the Body
-    Tracking SDK's ``offline_processor`` and serve the JSON (``--source take.json``,
-    :mod:`streamfix.io.azure_kinect`).
+    SDKs) is not built in yet, so this says how to get the same data through a file:
+    record with ``k4arecorder``, export with the Body Tracking SDK's ``offline_processor``
+    and serve the JSON (``--source take.json``, :mod:`streamfix.io.azure_kinect`).
 
 Every source offers ``poll(timeout_s) -> list[Item]`` (returns at most after
 ``timeout_s``; items are :class:`Frame`, :class:`Announce`, :class:`Rejected`,
