@@ -46,6 +46,7 @@ __all__ = [
     "carry_over",
     "is_archive_input",
     "partial_path",
+    "write_complete",
 ]
 
 SUMMARY_NAME = "streamfix-clean-summary.json"
@@ -146,6 +147,24 @@ def partial_path(path: str | Path, pid: int | None = None) -> Path:
     return out.with_name(f".{out.stem}.part-{os.getpid() if pid is None else pid}{out.suffix}")
 
 
+def write_complete(motion, path: str | Path) -> None:
+    """Write ``motion`` (:func:`streamfix.io.write_motion`, format from the extension) to ``path``
+    under :func:`partial_path` and rename it into place: ``path`` never holds half a file (a
+    crash or Ctrl-C mid-write leaves the old one, if any), and no partial file is left behind.
+    Errors raise as the writer's (OSError / ValueError), the partial file removed."""
+    from .io import write_motion
+
+    out = Path(path)
+    tmp = partial_path(out)
+    try:
+        write_motion(motion, tmp)
+        if not tmp.is_file() or tmp.stat().st_size == 0:
+            raise OSError(f"{out}: the writer reported success but no file was written")
+        os.replace(tmp, out)  # atomic within a folder
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 _PRIOR_SET: list[str | None] = [None]  # the prior this process last made its default
 
 
@@ -159,10 +178,9 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
     record = {"input": str(input_path), "output": str(output_path), "status": "failed", "error": None,
               "frames": 0, "seconds": 0.0}
     out = Path(output_path)
-    tmp = partial_path(out)
     try:
         from .cleaning import clean_recording
-        from .io import read_motion, write_motion
+        from .io import read_motion
         from .streaming.config import schedule_config
 
         if options.prior != _PRIOR_SET[0]:
@@ -178,16 +196,11 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
                                  training=list(options.training) if options.training else None,
                                  keep_filled=options.keep_filled)
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_motion(result.motion, tmp)
-        if not tmp.is_file() or tmp.stat().st_size == 0:
-            raise OSError("the writer reported success but no file was written")
-        os.replace(tmp, out)  # atomic within a folder: the output name never holds a partial file
+        write_complete(result.motion, out)
         record.update(status="ok", frames=int(result.motion.n_frames))
     except Exception as exc:  # one bad file must not stop an archive: report it, go on
         record["error"] = f"{type(exc).__name__}: {exc}"
     finally:
-        if tmp.exists():
-            tmp.unlink()
         record["seconds"] = round(time.process_time() - t0, 4)
     return record
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import sys
 import time
 from pathlib import Path
@@ -135,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     if args.jobs != 1 or args.cluster is not None or args.summary is not None:
         print("streamfix clean: --jobs, --cluster and --summary apply when IN is a folder or a glob", file=sys.stderr)
         return 2
-    from ..io import WRITE_FORMATS, check_writable, read_motion, write_motion
+    from ..io import WRITE_FORMATS, check_writable, read_motion
     from ..streaming.config import schedule_config
     from ..cleaning import clean_recording
     from ..streaming.offline import WindowSolverError
@@ -195,20 +194,15 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
     source, cleaned, metrics, notes, gapfilled = (
         result.source, result.motion, result.metrics, result.notes, result.gapfilled)
-    from ..archive import partial_path
+    from ..archive import partial_path, write_complete
 
-    tmp = partial_path(args.output)  # written beside OUT, then renamed: OUT is never half written
     try:
-        write_motion(cleaned, tmp)
-        if not tmp.is_file() or tmp.stat().st_size == 0:
-            raise OSError(f"{args.output}: the writer reported success but no file was written")
-        os.replace(tmp, args.output)
+        write_complete(cleaned, args.output)  # beside OUT, then renamed: OUT is never half written
     except (OSError, ValueError) as exc:
-        print(f"streamfix clean: cannot write {args.output}: {str(exc).replace(str(tmp), str(args.output))}",
+        tmp = str(partial_path(args.output))  # a writer's error may name the file it wrote
+        print(f"streamfix clean: cannot write {args.output}: {str(exc).replace(tmp, str(args.output))}",
               file=sys.stderr)
         return 1
-    finally:  # also on Ctrl-C while writing
-        tmp.unlink(missing_ok=True)
     if metrics.get("solver_errors", 0):  # a partly failed cleaning is said even with --quiet
         print(f"streamfix clean: warning: {metrics['solver_errors']} window(s) failed to solve "
               f"(first: {metrics.get('first_solver_error')})", file=sys.stderr)

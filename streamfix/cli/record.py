@@ -71,8 +71,6 @@ class _Output:
             try:
                 self.writer = RecordingWriter(self.path, append=append, overwrite=overwrite,
                                               fsync_interval_s=fsync_interval_s)
-            except FileExistsError:
-                raise
             except BaseException:
                 if not existed:  # created here, header not written (disk full): leave nothing behind
                     with contextlib.suppress(OSError):

@@ -421,7 +421,7 @@ def open_depthai_source(spec: str, stream_id: str | None = None) -> DepthaiSourc
 
 
 def open_azure_kinect_source(spec: str):
-    """``--source azure-kinect``: always a RuntimeError saying what is missing and what works today."""
+    """``--source azure-kinect``: always a RuntimeError saying live capture is not built in and what works today."""
     via_file = ("record with k4arecorder, export the bodies with the Body Tracking SDK's offline_processor "
                 "and serve the JSON file: --source take.json")
     # one message whether the optional binding is installed or not: installing it does not
