@@ -108,6 +108,89 @@ def test_live_jitter_three_times_lower_than_input(cmu30, fraction):
     assert err_live < err_in
 
 
+@pytest.fixture(scope="module")
+def walking_kinect30(shared_data):
+    """CMU 131_01 as exact Kinect v2 joints at 30 Hz, 20 s: feet at toe-off and heel strike
+    accelerate faster than a line through 7 samples (0.23 s) can follow."""
+    from streamfix.evaluation.sensor import ground_truth
+
+    return ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", 30.0).positions[:600]
+
+
+def _live_topic(truth: np.ndarray, config: EngineConfig) -> np.ndarray:
+    engine = StreamEngine(KINECT_V2, config)
+    live = []
+    J = truth.shape[1]
+    for i in range(len(truth)):
+        frame = SkeletonFrame("w", i, int(round(i / 30.0 * 1e9)), KINECT_V2.name, [BodyFrame(0, truth[i], np.ones(J))])
+        live += [f.bodies[0].positions for k, f in engine.push(frame) if k == "live"]
+    engine.flush()
+    return np.array(live)
+
+
+def test_live_gate_lets_fast_real_motion_through(walking_kinect30):
+    """Walking feet on exact data: the gate's line cannot follow them, but their raw samples
+    keep the legs' bone lengths and the line's values break them, so the rigid release gives
+    them back. Without it the live topic put a foot 23 cm off the (exact) input."""
+    from streamfix.streaming.live import LiveConfig
+
+    truth = walking_kinect30
+    errors = {}
+    for release in (True, False):
+        live = _live_topic(truth, EngineConfig(rate_hz=30.0, live=LiveConfig(rigid_release=release)))
+        assert live.shape == truth.shape
+        errors[release] = np.linalg.norm(live - truth, axis=2)
+    assert errors[True].max() < 0.13  # what the One Euro filter's lag alone leaves: 0.10 m
+    assert np.percentile(errors[True], 99) < 0.06
+    assert errors[False].max() > 1.5 * errors[True].max()
+
+
+def test_live_rigid_release_keeps_spikes_out_and_is_bit_identical_compiled(walking_kinect30, monkeypatch):
+    """With 5 mm noise and 10 % of the coordinates given a U(+-25 cm) spike, the release gives
+    back some gated samples (fast feet) but not the spikes: the output stays closer to the
+    truth than the input. The compiled chain gives the numpy path's values bit for bit."""
+    from streamfix.core import kernels
+    from streamfix.streaming.live import LiveConfig, LivePath
+
+    truth = walking_kinect30
+    rng = np.random.default_rng(4)
+    noisy, _ = add_noise(truth + rng.normal(0.0, 0.005, truth.shape), 0.10, rng)
+    bones = KINECT_V2.bone_array
+    lengths = np.linalg.norm(truth[:, bones[:, 1]] - truth[:, bones[:, 0]], axis=2).mean(axis=0)
+    valid = np.ones(truth.shape[1], dtype=bool)
+
+    def run(release: bool):
+        live = LivePath(truth.shape[1], bones, 30.0, LiveConfig(rigid_release=release))
+        live.set_bone_lengths(lengths)
+        steps = [live.step(noisy[i], valid, i / 30.0) for i in range(len(noisy))]
+        return np.array([y for y, _ in steps]), np.array([r for _, r in steps])
+
+    y, rec = run(True)
+    y_held, rec_held = run(False)
+    assert rec.sum() < rec_held.sum()  # samples given back
+    err = np.linalg.norm(y - truth, axis=2).mean()
+    assert err < 0.5 * np.linalg.norm(noisy - truth, axis=2).mean()
+    assert err <= np.linalg.norm(y_held - truth, axis=2).mean()
+    if kernels.COMPILED:
+        monkeypatch.setattr(kernels, "COMPILED", False)
+        y_ref, rec_ref = run(True)
+        assert np.array_equal(y, y_ref, equal_nan=True)
+        assert np.array_equal(rec, rec_ref)
+
+
+def test_live_gate_none_passes_samples_through():
+    """``gate='none'`` is no gate (it ran the older 'predict' gate before)."""
+    from streamfix.streaming.live import LiveConfig, LivePath
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(scale=0.3, size=(40, KINECT_V2.n_joints, 3))  # every frame a jump
+    live = LivePath(KINECT_V2.n_joints, KINECT_V2.bone_array, 30.0, LiveConfig(gate="none", filter="none", project=False))
+    valid = np.ones(KINECT_V2.n_joints, dtype=bool)
+    out = [live.step(x[i], valid, i / 30.0) for i in range(len(x))]
+    assert np.array_equal(np.array([y for y, _ in out]), x)
+    assert not any(r.any() for _, r in out)
+
+
 @pytest.mark.parametrize("fraction", [0.10, 0.20])
 def test_clean_within_125_percent_of_offline_whole_sequence(cmu30, fraction):
     """Issue 3: with a lookahead of at most 0.5 s, clean AJE <= 1.25x offline whole-sequence cleaning."""

@@ -732,9 +732,68 @@ def theil_sen_line(hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarr
 
 
 # --------------------------------------------------------------------------- live step (gate, One Euro, projection)
+def _release_rigid_loop(x, valid, g, outlier, last, tree_p, tree_c, child_len, order, ratio, floor):  # pragma: no cover - compiled
+    """:meth:`streamfix.streaming.live.LivePath._release_rigid`, the same sums in the same order."""
+    n_bones = tree_p.shape[0]
+    for i in range(order.shape[0]):
+        j = order[i]
+        if not valid[j] or not (outlier[j, 0] or outlier[j, 1] or outlier[j, 2]):
+            continue
+        e_raw = 0.0
+        e_rep = 0.0
+        n = 0.0
+        for side in range(2):
+            for b in range(n_bones):
+                if side == 0:
+                    if tree_p[b] != j:
+                        continue
+                    k = tree_c[b]
+                else:
+                    if tree_c[b] != j:
+                        continue
+                    k = tree_p[b]
+                length = child_len[tree_c[b]]
+                if not np.isfinite(length):
+                    d0 = last[tree_c[b], 0] - last[tree_p[b], 0]
+                    d1 = last[tree_c[b], 1] - last[tree_p[b], 1]
+                    d2 = last[tree_c[b], 2] - last[tree_p[b], 2]
+                    length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+                if not np.isfinite(length):
+                    continue
+                if side == 0 and valid[k]:  # a child not judged yet: raw; the parent as judged
+                    k0, k1, k2 = x[k, 0], x[k, 1], x[k, 2]
+                else:
+                    k0, k1, k2 = g[k, 0], g[k, 1], g[k, 2]
+                if not (np.isfinite(k0) and np.isfinite(k1) and np.isfinite(k2)):
+                    continue
+                if not (np.isfinite(g[k, 0]) and np.isfinite(g[k, 1]) and np.isfinite(g[k, 2])):
+                    continue
+                d0 = x[j, 0] - k0
+                d1 = x[j, 1] - k1
+                d2 = x[j, 2] - k2
+                e_raw += abs(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - length)
+                d0 = g[j, 0] - g[k, 0]
+                d1 = g[j, 1] - g[k, 1]
+                d2 = g[j, 2] - g[k, 2]
+                e_rep += abs(np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - length)
+                n += 1.0
+        if n == 0.0:
+            continue
+        e_raw = e_raw / max(n, 1.0)
+        e_rep = e_rep / max(n, 1.0)
+        if e_raw <= ratio * e_rep and e_rep > floor:
+            for c in range(3):
+                g[j, c] = x[j, c]
+                outlier[j, c] = False
+
+
+_release_rigid_compiled = _jit(_release_rigid_loop)
+
+
 def _live_step_loop(
     x, valid, t, hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
     min_cutoff, beta, d_cutoff, gate_min_m, gate_k, tree_p, tree_c, child_len, project, y_out, outlier,
+    order, release_ratio, release_floor,
 ):  # pragma: no cover - compiled
     n_rows, n_joints, _ = hist.shape
     # the raw history moves up one row; the newest row is this frame (NaN where invalid)
@@ -751,7 +810,6 @@ def _live_step_loop(
     g = np.empty((n_joints, 3))
     n_gated = 0
     for j in range(n_joints):
-        any_out = False
         for c in range(3):
             have_ref = np.isfinite(r[j, c])
             innov = abs(x[j, c] - r[j, c])
@@ -764,14 +822,16 @@ def _live_step_loop(
             tau = max(gate_min_m, gate_k * s)
             out = valid[j] and have_ref and innov > tau
             outlier[j, c] = out
-            any_out = any_out or out
             if valid[j] and not out:
                 g[j, c] = x[j, c]
             elif have_ref:
                 g[j, c] = r[j, c]
             else:
                 g[j, c] = last[j, c]
-        if any_out:
+    if release_ratio >= 0.0 and tree_p.shape[0] > 0:
+        _release_rigid_compiled(x, valid, g, outlier, last, tree_p, tree_c, child_len, order, release_ratio, release_floor)
+    for j in range(n_joints):
+        if outlier[j, 0] or outlier[j, 1] or outlier[j, 2]:
             n_gated += 1
     # One Euro (Casiez et al. 2012), per joint with a finite gated sample
     for j in range(n_joints):
@@ -829,7 +889,7 @@ _live_step_compiled = _jit(_live_step_loop)
 def live_step(
     x: np.ndarray, valid: np.ndarray, t: float, hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarray,
     scale: np.ndarray, last: np.ndarray, filter_state: tuple, params: tuple, tree_parent: np.ndarray,
-    tree_child: np.ndarray, child_len: np.ndarray, project: bool,
+    tree_child: np.ndarray, child_len: np.ndarray, project: bool, release: tuple = (np.zeros(0, dtype=np.intp), -1.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """One frame of the live path's default chain, compiled: the Theil-Sen gate, the One
     Euro filter and the non-propagating bone projection of
@@ -840,7 +900,8 @@ def live_step(
     ``filter_state`` = the One Euro filter's ``(x, dx, t, seen)``; ``last`` ``(J, 3)`` m, the
     previous output (read only). ``params`` =
     ``(min_cutoff Hz, beta, d_cutoff Hz, gate_min_m m, gate_k)``; ``tree_parent``,
-    ``tree_child`` ``(k,)`` the tree's bones; ``child_len`` ``(J,)`` m. Returns ``(positions (J, 3),
+    ``tree_child`` ``(k,)`` the tree's bones; ``child_len`` ``(J,)`` m. ``release`` = ``(joints
+    roots first, ratio, floor m)`` of the rigid release (a negative ratio: none). Returns ``(positions (J, 3),
     outlier (J, 3) bool, joints gated)``. Needs numba (:data:`HAVE_NUMBA`).
     """
     if _live_step_compiled is None:
@@ -855,6 +916,7 @@ def live_step(
         hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
         float(min_cutoff), float(beta), float(d_cutoff), float(gate_min_m), float(gate_k),
         tree_parent, tree_child, child_len, bool(project), y, outlier,
+        release[0], float(release[1]), float(release[2]),
     )
     return y, outlier, int(n)
 

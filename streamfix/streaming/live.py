@@ -11,7 +11,11 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
    as the uniform +-25 cm corruption of Yang et al.'s protocol, which a low-pass filter
    alone only spreads out, while following real motion (the line tracks velocity) and
    real sensor noise (``s`` adapts). Replaced values are never fed back, so the gate
-   cannot drift or lock out. ``gate='predict'`` is the older variant (constant-velocity
+   cannot drift or lock out. A line cannot follow a fast real movement (a foot at
+   toe-off at 30 Hz leaves it by decimetres), so a gated joint whose raw sample keeps its
+   bones' lengths, where the line's value breaks them, gets its raw sample back
+   (``rigid_release``, :meth:`LivePath._release_rigid`): a spike breaks the bones, real
+   motion does not. ``gate='predict'`` is the older variant (constant-velocity
    prediction from the gated history, with re-acquisition after ``reacquire``
    rejections); measured worse on real Kinect data (it raised jitter) and kept for
    comparison. ``gate='none'`` disables the gate.
@@ -47,6 +51,13 @@ from ..core.filters import HoltFilter as _HOLT
 
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
 
+RELEASE_RATIO = 0.5
+"""A gated joint gets its raw sample back when its raw bones' length error is at most this
+share of the gated value's (see :meth:`LivePath._release_rigid`)."""
+RELEASE_FLOOR_M = 0.003
+"""... and the gated value's bone-length error exceeds this (m): below it the line breaks
+nothing and its verdict stands."""
+
 
 @dataclass(frozen=True)
 class LiveConfig:
@@ -57,7 +68,9 @@ class LiveConfig:
     samples in the Theil-Sen line; gate_min_m: smallest gate radius (m); gate_k: radius
     in units of the residual scale; reacquire ('predict' gate): consecutive rejections
     after which self-consistent raw samples are accepted; project: apply the bone-length
-    projection; propagate: forward-kinematics projection (see the module doc).
+    projection; propagate: forward-kinematics projection (see the module doc);
+    rigid_release: give gated joints that keep their bones' lengths their raw sample
+    ('theil_sen' gate).
     """
 
     filter: str = "one_euro"
@@ -71,6 +84,7 @@ class LiveConfig:
     gate_frames: int = 7
     project: bool = True
     propagate: bool = False
+    rigid_release: bool = True
 
     def __post_init__(self) -> None:
         if self.filter not in ("one_euro", "holt", "none"):
@@ -159,6 +173,23 @@ def _nanmedian0(a: np.ndarray) -> np.ndarray:
     return np.where(n > 0, med, np.nan)
 
 
+def _release_order(levels: list[np.ndarray], n_joints: int) -> list[np.ndarray]:
+    """Joints by depth in the tree, roots first (joints off the tree last)."""
+    placed = np.zeros(n_joints, dtype=bool)
+    order = []
+    if levels:
+        roots = np.setdiff1d(np.unique(levels[0][:, 0]), np.concatenate([lv[:, 1] for lv in levels]))
+        order.append(roots)
+        placed[roots] = True
+        for lv in levels:
+            order.append(lv[:, 1])
+            placed[lv[:, 1]] = True
+    rest = np.flatnonzero(~placed)
+    if len(rest):
+        order.append(rest)
+    return order
+
+
 def _make_filter(cfg: LiveConfig, rate_hz: float):
     """The low-pass stage: streaming filters of :mod:`streamfix.core.filters`."""
     from streamfix.core.filters import HoltFilter, OneEuroFilter
@@ -185,6 +216,9 @@ class LivePath:
         self._params = (config.min_cutoff, config.beta, config.d_cutoff, config.gate_min_m, config.gate_k)
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
+        self._release_order = _release_order(self.levels, n_joints)
+        self._release_flat = np.ascontiguousarray(np.concatenate(self._release_order) if self._release_order
+                                                  else np.zeros(0, dtype=np.intp), dtype=np.intp)
         self.reset()
 
     def reset(self) -> None:
@@ -278,6 +312,8 @@ class LivePath:
         valid3 = np.broadcast_to(valid[:, None], x.shape)
         if cfg.gate == "theil_sen":
             return self._step_theil_sen(x, valid, valid3, t)
+        if cfg.gate == "none":  # missing joints hold their last output
+            return self._finish(np.where(valid3, x, self._last), np.zeros(x.shape, dtype=bool), valid, t)
         r = self.predict(x, valid)
         have_ref = np.isfinite(r)
         innov = np.abs(x - r)
@@ -324,6 +360,7 @@ class LivePath:
             x, valid, t, self._hist, self._u, self._pi, self._pj, self._scale, self._last,
             (f._x, f._dx, f._t, f._seen), self._params, tree_p, tree_c, self._child_len,
             bool(self.cfg.project and self.levels),
+            (self._release_flat, RELEASE_RATIO if self.cfg.rigid_release else -1.0, RELEASE_FLOOR_M),
         )
         self.gated_total += n_gated
         self._last = y.copy()
@@ -345,10 +382,61 @@ class LivePath:
         scale = np.where(np.isfinite(self._scale), self._scale, cfg.gate_min_m)
         tau = np.maximum(cfg.gate_min_m, cfg.gate_k * scale)
         outlier = valid3 & have_ref & (innov > tau)
-        self.gated_total += int(outlier.any(axis=1).sum())
         last = self._last
         g = np.where(valid3 & ~outlier, x, np.where(have_ref, r, last))
+        if cfg.rigid_release and outlier.any():
+            self._release_rigid(x, valid, g, outlier)
+        self.gated_total += int(outlier.any(axis=1).sum())
         return self._finish(g, outlier, valid, t)
+
+    def _release_rigid(self, x: np.ndarray, valid: np.ndarray, g: np.ndarray, outlier: np.ndarray) -> None:
+        """Give gated joints whose raw sample keeps their bones back their raw sample, in place.
+
+        The line through the last raw samples cannot follow a fast real movement (a foot at
+        toe-off, a punch): the newest sample leaves it by more than the gate radius. The
+        skeleton tells such motion from a spike: a real movement keeps the lengths of the
+        joint's bones and the line's value breaks them; a spike breaks them and the line's
+        value keeps them. Joint by joint, roots first (a released parent counts as raw for
+        its children): ``E_raw`` is the mean over the joint's tree bones of
+        ``| |x_j - x_k| - L_b |`` (the parent as judged, the children raw where valid: a
+        forearm flung off the elbow's line value stays gated joint by joint), ``E_rep`` the
+        same for the gated values; the joint is released when ``E_raw <= RELEASE_RATIO * E_rep`` and
+        ``E_rep > RELEASE_FLOOR_M``. ``L_b`` is the engine's robust bone length, else the
+        bone's length in the previous output.
+        """
+        tree_p, tree_c = self._tree_pc
+        if not len(tree_p):
+            return
+        length = self._child_len[tree_c]
+        prev = np.linalg.norm(self._last[tree_c] - self._last[tree_p], axis=1)
+        length = np.where(np.isfinite(length), length, prev)
+        child_raw = np.where(valid[:, None], x, g)
+        for joints in self._release_order:
+            cand = joints[valid[joints] & outlier[joints].any(axis=1)]
+            if not len(cand):
+                continue
+            e_raw = np.zeros(len(cand))
+            e_rep = np.zeros(len(cand))
+            n = np.zeros(len(cand))
+            # children (not judged yet) raw where valid; the parent as judged (roots first)
+            for end, other, neighbour in ((tree_p, tree_c, child_raw), (tree_c, tree_p, g)):
+                hit = end[None, :] == cand[:, None]  # (candidates, bones)
+                ci, bi = np.nonzero(hit)
+                k = other[bi]
+                ok = np.isfinite(length[bi]) & np.isfinite(neighbour[k]).all(axis=1) & np.isfinite(g[k]).all(axis=1)
+                ci, bi, k = ci[ok], bi[ok], k[ok]
+                j = cand[ci]
+                raw = np.abs(np.linalg.norm(x[j] - neighbour[k], axis=1) - length[bi])
+                rep = np.abs(np.linalg.norm(g[j] - g[k], axis=1) - length[bi])
+                np.add.at(e_raw, ci, raw)
+                np.add.at(e_rep, ci, rep)
+                np.add.at(n, ci, 1.0)
+            have = n > 0
+            e_raw = np.where(have, e_raw / np.maximum(n, 1), np.inf)
+            e_rep = np.where(have, e_rep / np.maximum(n, 1), 0.0)
+            free = cand[(e_raw <= RELEASE_RATIO * e_rep) & (e_rep > RELEASE_FLOOR_M)]
+            g[free] = x[free]
+            outlier[free] = False
 
     def _finish(self, g, outlier, valid, t):
         cfg = self.cfg
