@@ -22,6 +22,10 @@ The same bars are also reported per UI-PRMD person, each pooled over that person
 checks run on people kept back, and the spread over the shared data's six people is the
 estimate of where those land.
 
+``streamfix_live`` (serve's causal ``live`` topic, no lookahead) is in the tables beside the
+causal filters (One Euro, Holt) but has no bar: it is what a user sees at once, before the
+window's fixes arrive on ``clean``.
+
 Baselines are the methods run other than ``input`` and ``streamfix*`` (a whole-take solve,
 ``streamfix_whole``, is not a baseline); a method the
 registry does not know is skipped with a warning. Takes run in ``--workers`` processes
@@ -52,7 +56,7 @@ PAIRED = (ROOT / ".." / "shared" / "data" / "paired").resolve()
 
 from streamfix.cli.evaluate import _clean  # noqa: E402
 from streamfix.evaluation.paired import DEFAULT_METHODS, print_paired_table, run_paired  # noqa: E402
-from streamfix.evaluation.registry import ENGINE_SCHEDULES  # noqa: E402
+from streamfix.evaluation.registry import CLEAN_METHODS  # noqa: E402
 
 UIPRMD_MEAN_X_INPUT = 0.9
 UIPRMD_P95_X_INPUT = 0.85
@@ -121,7 +125,7 @@ def person_bars(records: list[dict]) -> list[dict]:
     rows = []
     for person in sorted({r["person"] for r in records}):
         mine = [r for r in records if r["person"] == person]
-        for method in ENGINE_SCHEDULES:
+        for method in CLEAN_METHODS:
             if any(r["method"] == method for r in mine):
                 takes = next(r["n_takes"] for r in mine if r["method"] == method)
                 rows += [{"person": person, "method": method, "takes": takes, **b} for b in check_bars(mine, method)
@@ -243,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"warning: {msg}", file=sys.stderr)
     records = [r for r in every if "person" not in r]
     print_paired_table(records)
-    bars = [b for m in ENGINE_SCHEDULES if any(r["method"] == m for r in records)
+    bars = [b for m in CLEAN_METHODS if any(r["method"] == m for r in records)
             for b in check_bars(records, m)]
     people = person_bars([r for r in every if "person" in r])
     print()

@@ -28,6 +28,9 @@ each method's seam is measured at its own schedule's window hand-overs:
   take here fits in one file window, so ``streamfix``'s hand-overs are checked on a longer
   take by ``tests/test_streaming_offline.py``).
 
+``streamfix_live`` (serve's causal ``live`` topic) is in the tables with no bar, beside the
+causal filters (One Euro, Holt).
+
 Also written, with no bar: per error kind, in how many takes x seeds the engine beats the
 baseline its pooled bar names, and the worst take (:func:`per_take`): the pooled means weigh
 takes by their frames, and the short Xia takes (1-3 s, shorter than a ``clean`` window) are
@@ -56,13 +59,13 @@ sys.path.insert(0, str(ROOT))
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 RESULTS = ROOT / "benchmarks" / "results"
 
-from streamfix.evaluation.registry import ENGINE_SCHEDULES  # noqa: E402
+from streamfix.evaluation.registry import CLEAN_METHODS, ENGINE_SCHEDULES  # noqa: E402
 from streamfix.evaluation.sensor import SCORED_KINDS, run_sensor, summarise  # noqa: E402
 
 SWAP_MAX_RATIO = 0.3
 FREEZE_MAX_RATIO = 0.5
 SEAM_MAX_RATIO = 1.1
-NOT_BASELINES = ("input", *ENGINE_SCHEDULES)  # the engine: what `clean` writes, what serve's clean topic publishes
+NOT_BASELINES = ("input", *ENGINE_SCHEDULES)  # the engine: what `clean` writes, serve's clean and live topics
 HAZARDS = ("flagged",)  # the input is right there: scored for damage, not against the baselines
 GAP_ONLY = ("linear", "spline")  # pass observed samples through: a baseline only where the input has gaps
 
@@ -219,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.perf_counter() - t0
     summary = summarise(records)
     seams = {m: v["seam_ratio"] for m, v in summarise([dict(r, kind="all") for r in records])["all"].items()}
-    bars = [b for m in ENGINE_SCHEDULES if m in METHODS for b in check_bars(summary, seams.get(m), m)]
+    bars = [b for m in CLEAN_METHODS if m in METHODS for b in check_bars(summary, seams.get(m), m)]
     meta = {"takes": len(files), "seeds": args.seeds, "rate_hz": DEFAULT_RATE_HZ, "wall_s": wall,
             "files": [_shown(f) for f in files], "missing_methods": missing,
             "prior": str(args.prior) if args.prior is not None else "shipped"}

@@ -73,7 +73,7 @@ __all__ = ["run_paired", "score_take", "held_out_bias_models", "person_of", "reg
            "DEFAULT_METHODS", "REGIONS", "PROTOCOLS"]
 
 DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth", "streamfix",
-                   "streamfix_serve")
+                   "streamfix_serve", "streamfix_live")
 REGIONS = ("all", "upper", "lower")
 MAX_LAG_FRAMES = 10
 FAST_JOINTS = 3

@@ -75,8 +75,14 @@ def layout_for(bones: np.ndarray, n_joints: int, skeleton: Skeleton | None = Non
     return Skeleton(f"eval_{n_joints}", names, tuple((int(a), int(b)) for a, b in np.asarray(bones).reshape(-1, 2)))
 
 
-ENGINE_SCHEDULES = {"streamfix": "file", "streamfix_serve": "serve"}
-"""The engine methods and the schedule each runs (:func:`streamfix.streaming.config.schedule_config`)."""
+ENGINE_SCHEDULES = {"streamfix": "file", "streamfix_serve": "serve", "streamfix_live": "serve"}
+"""The engine methods and the schedule each runs (:func:`streamfix.streaming.config.schedule_config`):
+``streamfix`` is what ``streamfix clean`` writes, ``streamfix_serve`` serve's ``clean`` topic and
+``streamfix_live`` serve's causal ``live`` topic (judge it beside the causal filters, One Euro and Holt)."""
+
+CLEAN_METHODS = ("streamfix", "streamfix_serve")
+"""The engine methods whose output is the cleaned result (what ``clean`` writes and serve's
+``clean`` topic publishes): the ones the benchmarks' bars judge."""
 
 
 def engine_config(method: str, rate_hz: float):
@@ -107,11 +113,12 @@ def _engine_method(name: str) -> Method:
             return clean_recording(motion, cfg).motion.positions
         from ..streaming.offline import clean_motion
 
-        out, _ = clean_motion(motion, cfg)
+        topic = "live" if name == "streamfix_live" else "clean"
+        out, _ = clean_motion(motion, cfg, topic=topic)
         return out.positions
 
     run.__name__ = name
-    run.__doc__ = f"The engine's clean output on the {ENGINE_SCHEDULES[name]} schedule."
+    run.__doc__ = f"The engine's {'live' if name == 'streamfix_live' else 'clean'} output on the {ENGINE_SCHEDULES[name]} schedule."
     return run
 
 

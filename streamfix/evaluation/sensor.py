@@ -58,7 +58,7 @@ __all__ = [
 ]
 
 DEFAULT_METHODS = ("input", "median_savgol", "savgol", "one_euro", "one_euro_tuned", "holt", "butterworth",
-                   "linear", "streamfix", "streamfix_serve")
+                   "linear", "streamfix", "streamfix_serve", "streamfix_live")
 DEFAULT_RATE_HZ = 30.0
 N_SEEDS = 3
 _MIX = "mix"
