@@ -164,6 +164,40 @@ def test_runs_of_frames_give_what_one_pass_gives_and_bones_keep_their_lengths(se
     assert np.abs(length(whole) - length(pos)).mean() < 0.1 * moved
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_one_frame_at_a_time_gives_what_one_pass_gives(sensor_poses, monkeypatch, compiled):
+    """The live topic's per-frame correction (compiled, or the numpy batch function on one
+    frame without numba) is the batch correction frame by frame: a joint missing, a frame without a
+    body frame, a frame whose trunk sits at the coordinate origin (not camera space: uncorrected) and a pose
+    unlike the training ones (faded) included."""
+    from streamfix.core import kernels
+    from streamfix.core.pose_bias_live import LivePoseBias
+
+    if compiled and not kernels.COMPILED:
+        pytest.skip("numba not available")
+    monkeypatch.setattr(kernels, "COMPILED", compiled)
+    model = shipped_model("kinect_v1_uiprmd")
+    pos, bones = sensor_poses[3][:60].copy(), SKELETON.bone_array
+    pos[10, SKELETON.joint_names.index("LKnee")] = np.nan
+    pelvis, neck = (SKELETON.joint_names.index(n) for n in LAYOUT.frame_joints[2:])
+    pos[20] -= 0.5 * (pos[20, pelvis] + pos[20, neck])  # the trunk at the origin
+    pos[30, SKELETON.joint_names.index("RWrist")] += np.array([0.0, 0.6, 0.0])  # an arm no one trained
+    left, right = (SKELETON.joint_names.index(n) for n in LAYOUT.frame_joints[:2])
+    pos[40, left] = pos[40, right]  # no body frame (a zero-length axis): uncorrected, no error raised
+    alpha = correction_gain(30.0)
+    whole, whole_last = remove_pose_bias(pos, bones, model, alpha)
+    live = LivePoseBias(model, bones, alpha)
+    frames, last = [], None
+    for p in pos:
+        out, last = live.step(p, last)
+        frames.append(out)
+    frames = np.array(frames)
+    assert np.array_equal(np.isnan(frames), np.isnan(whole))
+    np.testing.assert_allclose(frames, whole, atol=1e-12)
+    np.testing.assert_allclose(last, whole_last, atol=1e-12)
+    assert np.nanmax(np.abs(whole - pos)) > 0.02  # it does correct
+
+
 def test_model_files_round_trip_and_a_bad_one_is_named(tmp_path):
     model = shipped_model("kinect_v1_uiprmd")
     path = save_pose_bias(model, tmp_path / "m.npz")
@@ -202,15 +236,16 @@ def test_auto_picks_the_shipped_model_for_its_skeleton_only(tmp_path):
 
 
 def test_the_engine_emits_the_uncorrected_output_less_the_bias(shared_data):
-    """What `serve` publishes and `clean` writes is the uncorrected engine output put through
-    remove_pose_bias in one pass (the engine's runs of frames change nothing)."""
+    """What `serve` publishes (on clean and on live) and `clean` writes is the uncorrected
+    engine output put through remove_pose_bias in one pass (the engine's runs of frames, and
+    the live topic's single frames, change nothing)."""
     from streamfix.evaluation.registry import run_method
     from streamfix.io.paired import find_takes, load_take
 
     ref = [r for r in find_takes(shared_data / "paired", subset="trustworthy") if r.dataset == "uiprmd"][300]
     m = load_take(ref).sensor
     model = shipped_model(m.skeleton.name)
-    for method in ("streamfix", "streamfix_serve"):
+    for method in ("streamfix", "streamfix_serve", "streamfix_live"):
         run = lambda bias: run_method(method, m.positions, m.confidence, m.skeleton.bone_array, m.rate_hz,  # noqa: E731
                                       skeleton=m.skeleton, sensor_bias=bias)
         off, on = run("off"), run("auto")

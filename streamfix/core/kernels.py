@@ -55,6 +55,7 @@ __all__ = [
     "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
     "shorth_mode", "length_mode_with_support", "live_step", "kabsch_rotations", "warm_up",
+    "live_pose_bias",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -391,6 +392,187 @@ def project_bone_lengths_pbd(
     _pbd_compiled(xt, i, j, targets, wi, wj, int(iterations))
     return np.ascontiguousarray(xt.transpose(2, 0, 1))
 
+
+# --------------------------------------------------------------------------- pose bias, one frame
+def _unit_into(v, out):  # pragma: no cover - compiled
+    norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    for c in range(3):
+        out[c] = v[c] / norm
+
+
+def _pose_bias_frame_loop(pos, frame_idx, seg_p, seg_c, group_start, sensor_direction, sensor_weight, min_distance,
+                          feature_mean, weights, centres, fade_start, fade_end, max_correction, follow,
+                          out):  # pragma: no cover - compiled
+    """The correction of one frame into ``out`` (J, 3); returns False (``out`` zero) where a
+    feature is not finite."""
+    n_joints = pos.shape[0]
+    for j in range(n_joints):
+        for c in range(3):
+            out[j, c] = 0.0
+    ls, rs, pelvis, neck = frame_idx[0], frame_idx[1], frame_idx[2], frame_idx[3]
+    R = np.empty((3, 3))
+    v = np.empty(3)
+    u = np.empty(3)
+    for c in range(3):
+        v[c] = pos[rs, c] - pos[ls, c]
+    _unit_into_compiled(v, u)
+    for c in range(3):
+        R[0, c] = u[c]
+    up = np.empty(3)
+    for c in range(3):
+        up[c] = pos[neck, c] - pos[pelvis, c]
+    dot = up[0] * R[0, 0] + up[1] * R[0, 1] + up[2] * R[0, 2]
+    for c in range(3):
+        v[c] = up[c] - dot * R[0, c]
+    _unit_into_compiled(v, u)
+    for c in range(3):
+        R[1, c] = u[c]
+    R[2, 0] = R[0, 1] * R[1, 2] - R[0, 2] * R[1, 1]
+    R[2, 1] = R[0, 2] * R[1, 0] - R[0, 0] * R[1, 2]
+    R[2, 2] = R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0]
+    sensor = np.empty(3)
+    if sensor_direction:
+        for c in range(3):
+            v[c] = -0.5 * (pos[pelvis, c] + pos[neck, c])
+        dist = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        for c in range(3):
+            u[c] = v[c] / dist if dist >= min_distance else np.nan
+        for i in range(3):
+            sensor[i] = R[i, 0] * u[0] + R[i, 1] * u[1] + R[i, 2] * u[2]
+    n_feat = feature_mean.shape[0]
+    full = np.empty(n_feat)
+    linear = np.empty(centres.shape[1])
+    n_groups = group_start.shape[0] - 1
+    fg = np.empty(3 * seg_p.shape[0] + 3)
+    nf = 0
+    nl = 0
+    for g in range(n_groups):
+        m = 0
+        for s in range(group_start[g], group_start[g + 1]):
+            for c in range(3):
+                v[c] = pos[seg_c[s], c] - pos[seg_p[s], c]
+            _unit_into_compiled(v, u)
+            for i in range(3):
+                fg[m] = R[i, 0] * u[0] + R[i, 1] * u[1] + R[i, 2] * u[2]
+                linear[nl] = fg[m]
+                m += 1
+                nl += 1
+        if sensor_direction:
+            for i in range(3):
+                fg[m] = sensor[i]
+                m += 1
+        for i in range(m):
+            full[nf] = fg[i]
+            nf += 1
+        for i in range(m):
+            for k in range(i, m):
+                full[nf] = fg[i] * fg[k]
+                nf += 1
+    if sensor_direction:
+        for i in range(3):
+            linear[nl] = sensor_weight * sensor[i]
+            nl += 1
+    for f in range(n_feat):
+        if not np.isfinite(full[f]):
+            return False
+    for i in range(3):
+        for c in range(3):
+            if not np.isfinite(R[i, c]):
+                return False
+    n_out = weights.shape[1]
+    e = np.zeros(n_out)
+    for f in range(n_feat):
+        x = full[f] - feature_mean[f]
+        for o in range(n_out):
+            e[o] += x * weights[f, o]
+    ll = 0.0
+    for i in range(nl):
+        ll += linear[i] * linear[i]
+    best = np.inf
+    for q in range(centres.shape[0]):
+        lc = 0.0
+        cc = 0.0
+        for i in range(nl):
+            lc += linear[i] * centres[q, i]
+            cc += centres[q, i] * centres[q, i]
+        d2 = ll - 2.0 * lc + cc
+        if d2 < best:
+            best = d2
+    distance = np.sqrt(max(best, 0.0))
+    fade = (fade_end - distance) / max(fade_end - fade_start, 1e-12)
+    fade = min(max(fade, 0.0), 1.0)
+    n_corrected = n_out // 3
+    world = np.empty((n_corrected, 3))
+    for k in range(n_corrected):
+        norm = np.sqrt(e[3 * k] ** 2 + e[3 * k + 1] ** 2 + e[3 * k + 2] ** 2)
+        scale = fade * min(1.0, max_correction[k] / max(norm, 1e-12))
+        for c in range(3):
+            world[k, c] = R[0, c] * e[3 * k] * scale + R[1, c] * e[3 * k + 1] * scale + R[2, c] * e[3 * k + 2] * scale
+    for j in range(n_joints):
+        for k in range(n_corrected):
+            w = follow[j, k]
+            if w != 0.0:
+                for c in range(3):
+                    out[j, c] += w * world[k, c]
+    return True
+
+
+# numpy's error model: a zero-length vector gives NaN (the frame is not corrected), as numpy does
+_unit_into_compiled = _jit(_unit_into, error_model="numpy")
+_pose_bias_frame_compiled = _jit(_pose_bias_frame_loop, error_model="numpy")
+
+
+def _live_pose_bias_loop(pos, frame_idx, seg_p, seg_c, group_start, sensor_direction, sensor_weight, min_distance,
+                         feature_mean, weights, centres, fade_start, fade_end, max_correction, follow,
+                         bi, bj, wi, wj, iterations, alpha, previous, has_previous, out, shift):  # pragma: no cover
+    n_joints = pos.shape[0]
+    correction = np.empty((n_joints, 3))
+    _pose_bias_frame_compiled(pos, frame_idx, seg_p, seg_c, group_start, sensor_direction, sensor_weight, min_distance,
+                              feature_mean, weights, centres, fade_start, fade_end, max_correction, follow, correction)
+    whole = True
+    xt = np.empty((n_joints, 3, 1))
+    for j in range(n_joints):
+        for c in range(3):
+            if not np.isfinite(pos[j, c]):
+                whole = False
+            xt[j, c, 0] = pos[j, c] - correction[j, c]
+    n_bones = bi.shape[0]
+    if whole and n_bones > 0 and iterations > 0:
+        target = np.empty((n_bones, 1))
+        for b in range(n_bones):
+            d0 = pos[bj[b], 0] - pos[bi[b], 0]
+            d1 = pos[bj[b], 1] - pos[bi[b], 1]
+            d2 = pos[bj[b], 2] - pos[bi[b], 2]
+            target[b, 0] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        _pbd_compiled(xt, bi, bj, target, wi, wj, iterations)
+    for j in range(n_joints):
+        for c in range(3):
+            raw = xt[j, c, 0] - pos[j, c]
+            if not np.isfinite(raw):
+                raw = 0.0
+            s = alpha * raw + (1.0 - alpha) * previous[j, c] if has_previous and alpha != 1.0 else raw
+            shift[j, c] = s
+            out[j, c] = pos[j, c] + s
+
+
+_live_pose_bias_compiled = _jit(_live_pose_bias_loop, error_model="numpy")
+
+
+def live_pose_bias(pos: np.ndarray, prepared: tuple, previous: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """One frame ``pos`` ``(J, 3)`` m less the learned sensor bias, put back on its own bone
+    lengths and the shift smoothed from ``previous`` (None: unsmoothed): the math of
+    :func:`streamfix.core.pose_bias.remove_pose_bias` on one frame (same result up to
+    summation order) in one compiled call. ``prepared``: the model's and the projection's
+    arrays (:class:`streamfix.core.pose_bias_live.LivePoseBias`). Returns ``(corrected, shift)``.
+    Needs numba (:data:`HAVE_NUMBA`)."""
+    if _live_pose_bias_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.live_pose_bias needs numba; use streamfix.core.pose_bias.remove_pose_bias")
+    out = np.empty((pos.shape[0], 3))
+    shift = np.empty((pos.shape[0], 3))
+    has_previous = previous is not None
+    prev = np.ascontiguousarray(previous, dtype=np.float64) if has_previous else out
+    _live_pose_bias_compiled(np.ascontiguousarray(pos, dtype=np.float64), *prepared, prev, has_previous, out, shift)
+    return out, shift
 
 # --------------------------------------------------------------------------- Gauss-Newton step
 def _gauss_newton_loop(N, A, Z2, rho2, gamma, bi, bj, sq_lengths, diags, out):  # pragma: no cover - compiled
@@ -1327,3 +1509,8 @@ def warm_up() -> None:
     live_step(finite[0], np.ones(3, dtype=bool), 0.0, x[:7].copy(), np.arange(7.0), pi, pj, np.full((3, 3), np.nan),
               np.full((3, 3), np.nan), state, (1.0, 0.5, 1.0, 0.03, 4.0), bones[:, 0].copy(), bones[:, 1].copy(),
               np.full(3, 0.5), True)
+    idx = lambda *v: np.array(v, dtype=np.intp)  # noqa: E731
+    prepared = (idx(0, 1, 2, 2), idx(0), idx(1), idx(0, 1), True, 5.0, 0.5, np.zeros(27), np.zeros((27, 3)),
+                np.zeros((2, 6)), 1.0, 2.0, np.ones(1), np.ones((3, 1)), idx(0, 1), idx(1, 2), np.full((2, 1), 0.25),
+                np.full((2, 1), 0.25), 2, 0.5)
+    live_pose_bias(finite[0] + 1.0, prepared, None)

@@ -145,6 +145,7 @@ class Body:
         self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
         self.hist_n = 0
         self.bias_last: np.ndarray | None = None  # (J, 3) m: the sensor-bias shift of the last emitted frame
+        self.live_bias_last: np.ndarray | None = None  # (J, 3) m: the same for the live topic
 
     def reuse_rows(self, rows) -> None:
         """Clear the output accumulators of timeline rows ``rows`` (an index or an array of

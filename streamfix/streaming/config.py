@@ -101,8 +101,9 @@ class EngineConfig:
     fill_smooth_s: the same for joint-frames that are the model's fill rather than a
     measurement (:data:`streamfix.streaming.blending.FILL_DISTANCE_M`); at least
     ``output_smooth_s`` (equal = no wider smoothing; none when ``output_smooth_s`` is 0).
-    sensor_bias: the learned pose-dependent sensor bias removed from the clean output
-    (:mod:`streamfix.core.pose_bias`): ``"auto"`` (the model shipped for the stream's
+    sensor_bias: the learned pose-dependent sensor bias removed from the clean and live
+    outputs (:mod:`streamfix.core.pose_bias`; live one frame at a time,
+    :mod:`streamfix.core.pose_bias_live`): ``"auto"`` (the model shipped for the stream's
     skeleton, if any), None / ``"off"``, a model file's path or a model
     (:func:`streamfix.sensor_bias.resolve_sensor_bias`). Applied to what is emitted only:
     the bone lengths, history and windows the engine keeps are the uncorrected ones.

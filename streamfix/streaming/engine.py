@@ -145,6 +145,7 @@ import numpy as np
 
 from ..core.filters import twiced_binomial_taps
 from ..core.pose_bias import correction_gain
+from ..core.pose_bias_live import LivePoseBias
 from ..frames import BodyFrame, SkeletonFrame, check_frame
 from ..skeletons import Skeleton
 from ..limbs import mirror_bones
@@ -246,6 +247,8 @@ class StreamEngine:
         self._bias_alpha = correction_gain(self.cfg.rate_hz)
         self.bones = skeleton.bone_array
         self.n_joints = skeleton.n_joints
+        # the live topic removes the same bias, one frame at a time (compiled)
+        self._live_bias = None if self._pose_bias is None else LivePoseBias(self._pose_bias, self.bones, self._bias_alpha)
         if self.cfg.bone_lengths is not None and len(self.cfg.bone_lengths) != skeleton.n_bones:
             raise ValueError(
                 f"bone_lengths has {len(self.cfg.bone_lengths)} values, skeleton {skeleton.name!r} "
@@ -670,8 +673,11 @@ class StreamEngine:
                 else:  # offline: no live path (its output would be discarded)
                     body.store_present(k, n, pos, conf, valid, np.nan, True)
                 if self.cfg.live_output:
+                    shown = y.copy()
+                    if self._live_bias is not None:  # the stored live value (clean's fallback) stays as it was
+                        shown, body.live_bias_last = self._live_bias.step(y, body.live_bias_last)
                     live_bodies.append(
-                        BodyFrame(bid, y.copy(), output_confidence(y, conf if bf is not None else None, rec), rec.copy())
+                        BodyFrame(bid, shown, output_confidence(y, conf if bf is not None else None, rec), rec.copy())
                     )
                     self.live_hist.observe(time.perf_counter() - t0)
             else:
