@@ -246,6 +246,7 @@ def _stop_pool(pool: ProcessPoolExecutor, unfinished: list[ArchiveJob], grace_s:
     partial files the terminated workers leave behind. A plain ``shutdown()`` waits for every
     queued file, and can wait forever on a worker idle on its call queue after a Ctrl-C."""
     processes = list((getattr(pool, "_processes", None) or {}).values())  # before shutdown() drops them
+    manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         if proc.is_alive():
@@ -261,6 +262,11 @@ def _stop_pool(pool: ProcessPoolExecutor, unfinished: list[ArchiveJob], grace_s:
         for proc in processes:
             if proc.pid is not None:
                 partial_path(job.output, proc.pid).unlink(missing_ok=True)
+    # let the pool's manager thread see its workers gone and close its wake-up pipe: at exit,
+    # Python 3.11 wakes every pool's manager and raced its closing ("Exception ignored ... Bad
+    # file descriptor" printed after the user's Ctrl-C)
+    if manager is not None and manager.is_alive():
+        manager.join(grace_s)
 
 
 def _result_or_failure(fut, job: ArchiveJob) -> dict:

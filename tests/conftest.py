@@ -1,12 +1,19 @@
 """Shared fixtures: where the real recordings live (never copied into the project)."""
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import pytest
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = (PROJECT_ROOT / ".." / "shared" / "data").resolve()
+
+# A shell without job control starts a background command with SIGINT ignored, and an ignored
+# signal stays ignored in every child it runs: the tests that Ctrl-C a `streamfix` subprocess
+# would see it run to the end. The suite restores the default so it passes however it was started.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session")
