@@ -231,3 +231,36 @@ def test_ring_push_many_writes_the_rows_push_writes(before, n):
     assert many.count == one.count
     for name in ("_pos", "_conf", "_valid", "_time"):
         np.testing.assert_array_equal(getattr(many, name), getattr(one, name), err_msg=name)
+
+
+def test_live_projection_moves_only_joints_the_gate_replaced_or_the_sensor_lost(shared_data):
+    """A depth sensor's bones vary by centimetres: moving its tracked joints onto the robust
+    lengths moved them off the truth (Vicon). Tracked, accepted joints stay where the filter
+    puts them; a lost joint is put at its bone's length from its parent. With
+    ``project_tracked`` the old behaviour: every joint onto its length."""
+    from streamfix.streaming.live import LiveConfig, LivePath
+
+    m = read_motion(shared_data / "kinect_v2" / "Ges03_drawlines.csv")
+    bones = m.skeleton.bone_array
+    lengths = np.nanmedian(np.linalg.norm(m.positions[:, bones[:, 1]] - m.positions[:, bones[:, 0]], axis=2), axis=0)
+    lost = m.skeleton.index("WristLeft")
+    parent = int(bones[bones[:, 1] == lost][0, 0])
+    valid = m.confidence > 0
+    valid[60:90, lost] = False
+
+    def run(config: LiveConfig):
+        live = LivePath(m.n_joints, bones, m.rate_hz, config)
+        live.set_bone_lengths(lengths)
+        steps = [live.step(m.positions[i], valid[i], m.timestamps[i]) for i in range(m.n_frames)]
+        return np.array([y for y, _ in steps]), np.array([r for _, r in steps])
+
+    y, rec = run(LiveConfig())
+    y_free, _ = run(LiveConfig(project=False))
+    y_all, _ = run(LiveConfig(project_tracked=True))
+    kept = ~rec
+    kept[60:, lost] = False  # the filter resumes the lost wrist from its projected value
+    np.testing.assert_array_equal(y[kept], y_free[kept])
+    assert rec[60:90, lost].all()
+    gap = np.linalg.norm(y[60:90, lost] - y[60:90, parent], axis=1)
+    np.testing.assert_allclose(gap, lengths[bones[:, 1] == lost][0], rtol=1e-9)
+    assert np.abs(y_all[kept] - y_free[kept]).max() > 0.01  # the old projection did move tracked joints

@@ -974,8 +974,8 @@ _release_rigid_compiled = _jit(_release_rigid_loop)
 
 def _live_step_loop(
     x, valid, t, hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
-    min_cutoff, beta, d_cutoff, gate_min_m, gate_k, tree_p, tree_c, child_len, project, y_out, outlier,
-    order, release_ratio, release_floor,
+    min_cutoff, beta, d_cutoff, gate_min_m, gate_k, tree_p, tree_c, child_len, project, project_tracked, y_out,
+    outlier, order, release_ratio, release_floor,
 ):  # pragma: no cover - compiled
     n_rows, n_joints, _ = hist.shape
     # the raw history moves up one row; the newest row is this frame (NaN where invalid)
@@ -1047,6 +1047,8 @@ def _live_step_loop(
         for b in range(tree_p.shape[0]):
             p = tree_p[b]
             q = tree_c[b]
+            if not project_tracked and valid[q] and not (outlier[q, 0] or outlier[q, 1] or outlier[q, 2]):
+                continue  # a tracked joint the gate accepted stays where it was measured
             v0 = y[q, 0] - y[p, 0]
             v1 = y[q, 1] - y[p, 1]
             v2 = y[q, 2] - y[p, 2]
@@ -1071,7 +1073,8 @@ _live_step_compiled = _jit(_live_step_loop)
 def live_step(
     x: np.ndarray, valid: np.ndarray, t: float, hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarray,
     scale: np.ndarray, last: np.ndarray, filter_state: tuple, params: tuple, tree_parent: np.ndarray,
-    tree_child: np.ndarray, child_len: np.ndarray, project: bool, release: tuple = (np.zeros(0, dtype=np.intp), -1.0, 0.0),
+    tree_child: np.ndarray, child_len: np.ndarray, project: bool, project_tracked: bool = True,
+    release: tuple = (np.zeros(0, dtype=np.intp), -1.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """One frame of the live path's default chain, compiled: the Theil-Sen gate, the One
     Euro filter and the non-propagating bone projection of
@@ -1082,7 +1085,8 @@ def live_step(
     ``filter_state`` = the One Euro filter's ``(x, dx, t, seen)``; ``last`` ``(J, 3)`` m, the
     previous output (read only). ``params`` =
     ``(min_cutoff Hz, beta, d_cutoff Hz, gate_min_m m, gate_k)``; ``tree_parent``,
-    ``tree_child`` ``(k,)`` the tree's bones; ``child_len`` ``(J,)`` m. ``release`` = ``(joints
+    ``tree_child`` ``(k,)`` the tree's bones; ``child_len`` ``(J,)`` m. ``project_tracked``
+    False: the projection moves only joints missing or gated. ``release`` = ``(joints
     roots first, ratio, floor m)`` of the rigid release (a negative ratio: none). Returns ``(positions (J, 3),
     outlier (J, 3) bool, joints gated)``. Needs numba (:data:`HAVE_NUMBA`).
     """
@@ -1097,7 +1101,7 @@ def live_step(
         np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(valid, dtype=np.bool_), float(t),
         hist, u, pi, pj, scale, last, fx, fdx, ft, fseen,
         float(min_cutoff), float(beta), float(d_cutoff), float(gate_min_m), float(gate_k),
-        tree_parent, tree_child, child_len, bool(project), y, outlier,
+        tree_parent, tree_child, child_len, bool(project), bool(project_tracked), y, outlier,
         release[0], float(release[1]), float(release[2]),
     )
     return y, outlier, int(n)
