@@ -47,6 +47,5 @@ def test_streamfix_live_is_the_causal_live_topic(shared_data):
 
     live, live_later = run("streamfix_live", x), run("streamfix_live", later)
     assert np.array_equal(live[:100], live_later[:100], equal_nan=True)
-    assert not np.allclose(live[100:], live_later[100:])
     clean, clean_later = run("streamfix_serve", x), run("streamfix_serve", later)
     assert not np.allclose(clean[80:100], clean_later[80:100])

@@ -196,6 +196,8 @@ def test_one_frame_at_a_time_gives_what_one_pass_gives(sensor_poses, monkeypatch
     np.testing.assert_allclose(frames, whole, atol=1e-12)
     np.testing.assert_allclose(last, whole_last, atol=1e-12)
     assert np.nanmax(np.abs(whole - pos)) > 0.02  # it does correct
+    with pytest.raises(ValueError, match=r"\(22, 3\)"):
+        live.step(pos[0, :20], None)
 
 
 def test_model_files_round_trip_and_a_bad_one_is_named(tmp_path):

@@ -260,7 +260,6 @@ def test_live_projection_moves_only_joints_the_gate_replaced_or_the_sensor_lost(
     kept = ~rec
     kept[60:, lost] = False  # the filter resumes the lost wrist from its projected value
     np.testing.assert_array_equal(y[kept], y_free[kept])
-    assert rec[60:90, lost].all()
     gap = np.linalg.norm(y[60:90, lost] - y[60:90, parent], axis=1)
     np.testing.assert_allclose(gap, lengths[bones[:, 1] == lost][0], rtol=1e-9)
     assert np.abs(y_all[kept] - y_free[kept]).max() > 0.01  # the old projection did move tracked joints

@@ -29,9 +29,12 @@ into a single compiled loop over frames and channels:
   (:meth:`streamfix.streaming.live.LivePath.robust_line`), bit for bit;
 * :func:`kabsch_rotations`: the best rotations of :func:`streamfix.core.pca_normalise.kabsch_svd`
   (PCA gap filling normalises every frame with one), without a batched 3x3 SVD;
-* :func:`live_step`: one whole frame of the live path's default chain (that gate, the One
-  Euro filter, the bone projection) in one call, bit for bit: the per-frame path is
-  dozens of tiny numpy calls per body, and their overhead was most of its cost.
+* :func:`live_step`: one whole frame of the live path's default chain (that gate with its
+  rigid release, the One Euro filter, the bone projection) in one call, bit for bit: the
+  per-frame path is dozens of tiny numpy calls per body, and their overhead was most of its cost;
+* :func:`live_pose_bias`: the learned sensor bias removed from one frame
+  (:func:`streamfix.core.pose_bias.remove_pose_bias` on one frame, rounding apart): the
+  numpy batch function took most of a millisecond there.
 
 The numpy functions stay the reference: tests compare each kernel with them on real
 recordings (``tests/test_core_kernels.py``). Callers check :data:`COMPILED` at each
@@ -1073,8 +1076,7 @@ _live_step_compiled = _jit(_live_step_loop)
 def live_step(
     x: np.ndarray, valid: np.ndarray, t: float, hist: np.ndarray, u: np.ndarray, pi: np.ndarray, pj: np.ndarray,
     scale: np.ndarray, last: np.ndarray, filter_state: tuple, params: tuple, tree_parent: np.ndarray,
-    tree_child: np.ndarray, child_len: np.ndarray, project: bool, project_tracked: bool = True,
-    release: tuple = (np.zeros(0, dtype=np.intp), -1.0, 0.0),
+    tree_child: np.ndarray, child_len: np.ndarray, project: bool, project_tracked: bool, release: tuple,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """One frame of the live path's default chain, compiled: the Theil-Sen gate, the One
     Euro filter and the non-propagating bone projection of
@@ -1512,7 +1514,7 @@ def warm_up() -> None:
     state = (np.full((3, 3), np.nan), np.zeros((3, 3)), np.zeros(3), np.zeros(3, dtype=bool))
     live_step(finite[0], np.ones(3, dtype=bool), 0.0, x[:7].copy(), np.arange(7.0), pi, pj, np.full((3, 3), np.nan),
               np.full((3, 3), np.nan), state, (1.0, 0.5, 1.0, 0.03, 4.0), bones[:, 0].copy(), bones[:, 1].copy(),
-              np.full(3, 0.5), True)
+              np.full(3, 0.5), True, False, (np.arange(3, dtype=np.intp), 0.5, 0.003))
     idx = lambda *v: np.array(v, dtype=np.intp)  # noqa: E731
     prepared = (idx(0, 1, 2, 2), idx(0), idx(1), idx(0, 1), True, 5.0, 0.5, np.zeros(27), np.zeros((27, 3)),
                 np.zeros((2, 6)), 1.0, 2.0, np.ones(1), np.ones((3, 1)), idx(0, 1), idx(1, 2), np.full((2, 1), 0.25),

@@ -61,6 +61,9 @@ class LivePoseBias:
         """One frame ``(J, 3)`` m less the bias, on its own bone lengths, the shift smoothed
         with gain ``alpha`` from ``previous_shift`` (None: unsmoothed). Missing joints stay missing."""
         pos = np.asarray(position, dtype=np.float64)
+        if pos.shape != (len(self.model.joint_names), 3):  # the compiled call would read past it
+            raise ValueError(f"a frame must be ({len(self.model.joint_names)}, 3) for the {self.model.skeleton!r} "
+                             f"bias model, got {pos.shape}")
         if not kernels.COMPILED:
             out, last = remove_pose_bias(pos[None], self.bones, self.model, self.alpha, previous_shift)
             return out[0], last

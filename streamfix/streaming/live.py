@@ -22,14 +22,17 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
 2. **Low-pass**: the One Euro filter (Casiez et al. 2012) or the Kinect SDK Holt filter
    from :mod:`streamfix.core.filters`, on the gated samples.
 3. **Bone-length projection** (non-iterative): walking the skeleton tree from its roots,
-   one depth level at a time (vectorised within a level), each child is placed at
+   one depth level at a time (vectorised within a level), a child is placed at
    ``l_b * u`` from its parent, ``u`` the filtered bone direction and ``l_b`` the robust
    bone length the engine estimates from the clean history. Bones without a length
    estimate are left alone. By default (``propagate=False``) the parent is taken
    unprojected, so a joint moves only along its own bone and an error never spreads
-   down the chain; ``propagate=True`` is forward kinematics (exact lengths, lower bone
-   CV on Kinect, but a wrong parent drags its subtree: on CMU 131_01 with 20 %
-   corruption the live jitter cut drops from ~6x to ~3x).
+   down the chain, and only joints the gate replaced or the sensor lost move: a depth
+   sensor's bones vary by centimetres, and its tracked joints put on the robust lengths
+   ended further from optical motion capture (``project_tracked=True`` moves them too).
+   ``propagate=True`` is forward kinematics (exact lengths, lower bone CV on Kinect, but
+   a wrong parent drags its subtree: on CMU 131_01 with 20 % corruption the live jitter
+   cut drops from ~6x to ~3x).
 
 ``tests/test_streaming_ring_live.py`` holds the live output's jitter against the input's on
 CMU 131_01 with entries corrupted by U(+-25 cm). With numba the default chain (this gate,
@@ -37,8 +40,8 @@ One Euro, the projection without propagation) runs as one compiled call per body
 (:func:`streamfix.core.kernels.live_step`, the same values); its cost is in
 ``benchmarks/results/streaming.json``.
 
-A joint missing in the input is predicted (``r_t``; held when no velocity is known)
-and flagged recovered. Units: metres, seconds.
+A joint missing in the input is predicted (the gate's line; held when it has too few
+samples, and always with ``gate='none'``) and flagged recovered. Units: metres, seconds.
 """
 from __future__ import annotations
 
