@@ -43,9 +43,11 @@ def apply_prior_option(command: str, path: str | None) -> bool:
 
 
 def add_sensor_bias_argument(parser: argparse.ArgumentParser) -> None:
-    """``--sensor-bias auto|off|PATH``: the learned pose-dependent sensor bias removed from the clean output."""
+    """``--sensor-bias auto|off|PATH``: the learned pose-dependent sensor bias removed from the output
+    (``serve``: from both topics)."""
     parser.add_argument("--sensor-bias", default="auto", metavar="auto|off|PATH",
-                        help="remove the learned pose-dependent bias of the sensor's joints from the clean output: "
+                        help="remove the learned pose-dependent bias of the sensor's joints from the output "
+                             "(serve: from the clean and live topics): "
                              "'auto' (default: the model shipped for the skeleton, today Kinect v1 in UI-PRMD's "
                              "layout; none for other skeletons; it expects the sensor's camera-space coordinates), "
                              "'off', or a model file from `streamfix train-bias`")
