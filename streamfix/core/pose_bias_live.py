@@ -47,13 +47,12 @@ class LivePoseBias:
             np.ascontiguousarray(model.max_correction_m, dtype=np.float64),
             np.ascontiguousarray(model.follow, dtype=np.float64),
         )
-        b = self.bones
-        degree = np.bincount(b.ravel(), minlength=len(names)).astype(np.float64)
+        # the bone projection's constraints for one frame (equal inverse masses), as
+        # kernels.project_bone_lengths_pbd builds them; the target lengths are each frame's own
+        bi, bj, _, share_i, degree = kernels.pbd_constraints((1, len(names), 3), self.bones, np.ones(len(self.bones)), None)
         inv_degree = 1.0 / np.maximum(degree, 1.0)
-        column = lambda a: np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 1)  # noqa: E731
-        self._prepared += (  # the bone projection: equal inverse masses, each end takes half
-            np.ascontiguousarray(b[:, 0]), np.ascontiguousarray(b[:, 1]),
-            column(0.5 * inv_degree[b[:, 0]]), column(0.5 * inv_degree[b[:, 1]]),
+        self._prepared += (
+            bi, bj, np.ascontiguousarray((share_i * inv_degree[bi]).T), np.ascontiguousarray(((1.0 - share_i) * inv_degree[bj]).T),
             int(PROJECTION_ITERATIONS), self.alpha,
         )
 

@@ -102,6 +102,8 @@ def handover_frames(n_frames: int, rate_hz: float, method: str = "streamfix_serv
 
 
 def _engine_method(name: str) -> Method:
+    topic = "live" if name == "streamfix_live" else "clean"
+
     def run(x, conf, bones, rate, skeleton=None, sensor_bias="auto"):
         skel = layout_for(bones, x.shape[1], skeleton)
         times = np.arange(x.shape[0], dtype=np.float64) / float(rate)
@@ -113,12 +115,11 @@ def _engine_method(name: str) -> Method:
             return clean_recording(motion, cfg).motion.positions
         from ..streaming.offline import clean_motion
 
-        topic = "live" if name == "streamfix_live" else "clean"
         out, _ = clean_motion(motion, cfg, topic=topic)
         return out.positions
 
     run.__name__ = name
-    run.__doc__ = f"The engine's {'live' if name == 'streamfix_live' else 'clean'} output on the {ENGINE_SCHEDULES[name]} schedule."
+    run.__doc__ = f"The engine's {topic} output on the {ENGINE_SCHEDULES[name]} schedule."
     return run
 
 

@@ -673,8 +673,9 @@ class StreamEngine:
                 else:  # offline: no live path (its output would be discarded)
                     body.store_present(k, n, pos, conf, valid, np.nan, True)
                 if self.cfg.live_output:
-                    shown = y.copy()
-                    if self._live_bias is not None:  # the stored live value (clean's fallback) stays as it was
+                    if self._live_bias is None:
+                        shown = y.copy()
+                    else:  # the stored live value (clean's fallback) stays as it was
                         shown, body.live_bias_last = self._live_bias.step(y, body.live_bias_last)
                     live_bodies.append(
                         BodyFrame(bid, shown, output_confidence(y, conf if bf is not None else None, rec), rec.copy())

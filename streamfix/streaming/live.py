@@ -180,21 +180,12 @@ def _nanmedian0(a: np.ndarray) -> np.ndarray:
     return np.where(n > 0, med, np.nan)
 
 
-def _release_order(levels: list[np.ndarray], n_joints: int) -> list[np.ndarray]:
-    """Joints by depth in the tree, roots first (joints off the tree last)."""
-    placed = np.zeros(n_joints, dtype=bool)
-    order = []
-    if levels:
-        roots = np.setdiff1d(np.unique(levels[0][:, 0]), np.concatenate([lv[:, 1] for lv in levels]))
-        order.append(roots)
-        placed[roots] = True
-        for lv in levels:
-            order.append(lv[:, 1])
-            placed[lv[:, 1]] = True
-    rest = np.flatnonzero(~placed)
-    if len(rest):
-        order.append(rest)
-    return order
+def _release_order(levels: list[np.ndarray]) -> list[np.ndarray]:
+    """The tree's joints by depth, roots first (a joint off the tree has no bone to judge it by)."""
+    if not levels:
+        return []
+    roots = np.setdiff1d(np.unique(levels[0][:, 0]), np.concatenate([lv[:, 1] for lv in levels]))
+    return [roots] + [lv[:, 1] for lv in levels]
 
 
 def _make_filter(cfg: LiveConfig, rate_hz: float):
@@ -223,7 +214,7 @@ class LivePath:
         self._params = (config.min_cutoff, config.beta, config.d_cutoff, config.gate_min_m, config.gate_k)
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
-        self._release_order = _release_order(self.levels, n_joints)
+        self._release_order = _release_order(self.levels)
         self._release_flat = np.ascontiguousarray(np.concatenate(self._release_order) if self._release_order
                                                   else np.zeros(0, dtype=np.intp), dtype=np.intp)
         self.reset()
