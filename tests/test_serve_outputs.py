@@ -59,7 +59,7 @@ def test_serve_sends_the_clean_output_over_vmc(shared_data, tmp_path):
 
 
 def test_bad_vmc_target_fails_at_start(capsys):
-    assert main(["serve", "--source", "replay:nowhere.csv", "--vmc", "host:notaport"]) == 2
+    assert main(["serve", "--source", "stdin", "--vmc", "host:notaport"]) == 2
     assert "not a number" in capsys.readouterr().err
 
 

@@ -184,6 +184,20 @@ def run(args: argparse.Namespace) -> int:
         level=getattr(logging, args.log_level), stream=sys.stderr, format="streamfix serve: %(message)s"
     )
     log = logging.getLogger("streamfix.service")
+    from ..service.sources import check_source, default_replay_file, open_source
+
+    spec = args.source
+    if spec is None:
+        try:
+            spec = f"replay:{default_replay_file()}"
+        except FileNotFoundError as exc:
+            print(f"streamfix serve: {exc}", file=sys.stderr)
+            return 2
+    try:  # first: a camera not attached or a mistyped file is said before seconds go to building the engine
+        check_source(spec)
+    except (OSError, ValueError, RuntimeError) as exc:
+        print(f"streamfix serve: cannot open source: {exc}", file=sys.stderr)
+        return 2
     from .options import apply_prior_option, check_sensor_bias_option, check_speed
 
     if not apply_prior_option("serve", args.prior) or not check_sensor_bias_option("serve", args.sensor_bias):
@@ -196,16 +210,8 @@ def run(args: argparse.Namespace) -> int:
     from ..service.limits import Limits
     from ..service.publisher import ServicePublisher
     from ..service.server import Service
-    from ..service.sources import default_replay_file, open_source
     from ..transport.curve import CurveServer, is_loopback_endpoint
 
-    spec = args.source
-    if spec is None:
-        try:
-            spec = f"replay:{default_replay_file()}"
-        except FileNotFoundError as exc:
-            print(f"streamfix serve: {exc}", file=sys.stderr)
-            return 2
     speed = check_speed("serve", args.speed)
     if speed is None:
         return 2

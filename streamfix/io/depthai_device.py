@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["DepthaiOptions", "parse_depthai_spec", "import_depthai", "find_device", "open_device_pipeline"]
+__all__ = ["DepthaiOptions", "parse_depthai_spec", "import_depthai", "find_device", "check_device", "open_device_pipeline"]
 
 
 @dataclass(frozen=True)
@@ -87,8 +87,9 @@ def find_device(dai, device: str | None = None):
     return available[0]
 
 
-def open_device_pipeline(options: DepthaiOptions):
-    """Build and start the pipeline on a device: ``(pipeline, queue of SpatialImgDetections)``."""
+def check_device(options: DepthaiOptions):
+    """``(dai, DeviceInfo)`` when ``options`` can open a device, without opening it; RuntimeError
+    saying what is missing (the package, a device, a model) otherwise."""
     dai = import_depthai()
     info = find_device(dai, options.device)
     if options.model is None:
@@ -96,6 +97,12 @@ def open_device_pipeline(options: DepthaiOptions):
             "--source depthai: name a pose model with model=HUBAI_ID or model=ARCHIVE.tar.xz "
             "(17 COCO or 33 BlazePose keypoints)"
         )
+    return dai, info
+
+
+def open_device_pipeline(options: DepthaiOptions):
+    """Build and start the pipeline on a device: ``(pipeline, queue of SpatialImgDetections)``."""
+    dai, info = check_device(options)
     pipeline = dai.Pipeline(dai.Device(info))
     camera = pipeline.create(dai.node.Camera).build(dai.CameraBoardSocket.CAM_A)
     stereo = pipeline.create(dai.node.StereoDepth).build(autoCreateCameras=True)

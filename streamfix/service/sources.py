@@ -69,6 +69,7 @@ __all__ = [
     "ReplaySource",
     "DepthaiSource",
     "open_source",
+    "check_source",
     "default_replay_file",
 ]
 
@@ -455,26 +456,55 @@ def default_replay_file(project_root: Path | None = None) -> Path:
     )
 
 
-def open_source(spec: str, *, speed: float = 1.0, loop: bool = False, stream_id: str | None = None, context=None,
-                **zmq_options):
-    """Open the source named by ``--source`` (see module docstring); ``speed`` paces a
-    replay (x real time); ``zmq_options`` go to :class:`ZmqSource` (limits, backlog, curve)."""
+def _source_kind(spec: str) -> str:
+    """``stdin``, ``depthai``, ``azure-kinect``, ``replay`` or ``zmq`` for ``--source spec``;
+    FileNotFoundError / ValueError when it names no file or nothing understood."""
     if spec == "stdin" or spec == "-":
-        return StdinSource(stream_id=stream_id or "stdin")
+        return "stdin"
     if spec == "depthai" or spec.startswith("depthai:"):
-        return open_depthai_source(spec, stream_id)
+        return "depthai"
     if spec == "azure-kinect":
-        return open_azure_kinect_source(spec)
+        return "azure-kinect"
     if spec.startswith("replay:"):
-        path = spec[len("replay:"):]
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"--source replay:{path}: no such file")
-        return ReplaySource(path, rate=speed, loop=loop, stream_id=stream_id)
+        if not Path(spec[len("replay:"):]).is_file():
+            raise FileNotFoundError(f"--source {spec}: no such file")
+        return "replay"
     if "://" in spec:
-        return ZmqSource(spec, context=context, **zmq_options)
+        return "zmq"
     if Path(spec).is_file():
-        return ReplaySource(spec, rate=speed, loop=loop, stream_id=stream_id)
+        return "replay"
     raise ValueError(
         f"--source {spec!r} is not understood (and is no file); expected tcp://HOST:PORT (bound PULL), stdin, "
         "depthai[:model=ID,fps=HZ], azure-kinect, replay:FILE or the path of a recording"
     )
+
+
+def check_source(spec: str) -> None:
+    """Raise now what :func:`open_source` would raise for a source that cannot open, without
+    opening it: ``serve`` calls this before it spends seconds building the engine, so a
+    camera that is not attached or a mistyped file is said at once. A ZeroMQ endpoint is
+    checked when it is bound."""
+    kind = _source_kind(spec)
+    if kind == "depthai":
+        from ..io.depthai_device import check_device, parse_depthai_spec
+
+        check_device(parse_depthai_spec(spec))
+    elif kind == "azure-kinect":
+        open_azure_kinect_source(spec)
+
+
+def open_source(spec: str, *, speed: float = 1.0, loop: bool = False, stream_id: str | None = None, context=None,
+                **zmq_options):
+    """Open the source named by ``--source`` (see module docstring); ``speed`` paces a
+    replay (x real time); ``zmq_options`` go to :class:`ZmqSource` (limits, backlog, curve)."""
+    kind = _source_kind(spec)
+    if kind == "stdin":
+        return StdinSource(stream_id=stream_id or "stdin")
+    if kind == "depthai":
+        return open_depthai_source(spec, stream_id)
+    if kind == "azure-kinect":
+        return open_azure_kinect_source(spec)
+    if kind == "zmq":
+        return ZmqSource(spec, context=context, **zmq_options)
+    path = spec[len("replay:"):] if spec.startswith("replay:") else spec
+    return ReplaySource(path, rate=speed, loop=loop, stream_id=stream_id)
