@@ -44,6 +44,29 @@ def test_the_bridge_fits_the_prior_on_one_prior_window(shared_data):
     np.testing.assert_array_equal(long_ctx[0], short_ctx[0])
 
 
+def test_a_stream_that_never_shows_a_hand_tip_runs_no_prior_fit(shared_data, monkeypatch):
+    """A hand tip sits at its hand whatever the prior says: with the hand seen, the bridge
+    fills the lost tip every window without a latent fit, and the engine outputs it by the
+    hand, flagged recovered."""
+    import streamfix.prior.latent as latent
+
+    pos, obs = _walk(shared_data, 150)
+    tip, hand = KINECT_V2.index("HandTipLeft"), KINECT_V2.index("HandLeft")
+    o = obs.copy()
+    o[:, tip] = False
+    motion = Motion(np.where(o[..., None], pos, np.nan), o.astype(float), np.arange(len(pos)) / 30.0, 30.0, KINECT_V2)
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("a latent fit for a joint its observed anchor places")
+
+    monkeypatch.setattr(latent, "fit_latent", no_fit)
+    out, metrics = clean_motion(motion, window_solver=BridgingWindowSolver())
+    assert metrics["joints_bridged_prior"] > 0 and metrics.get("solver_errors", 0) == 0
+    assert out.recovered[:, tip].all() and np.isfinite(out.positions[:, tip]).all()
+    # at the hand, then (once the body's lengths are known) on the bone length of the other hand's tip
+    assert np.linalg.norm(out.positions[:, tip] - out.positions[:, hand], axis=1).max() < 0.1
+
+
 def test_a_walking_leg_missing_from_the_stream_start_follows_the_prior(shared_data):
     """No history for PCA yet: the prior fills the leg; held near its last sample (the arms' rule) it lags the walk."""
     pos, obs = _walk(shared_data, 150)

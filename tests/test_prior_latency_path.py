@@ -42,7 +42,11 @@ def _reference_fill(prior, x, obs, min_gap_frames, other_window):
                      damping=CHORD_DAMPING)  # the general batch code (B = 3)
     assert MIRROR_ENSEMBLE  # the default: the window and its mirror image, the second mirrored back
     canonical_est = 0.5 * (fit.decoded[0] + fit.decoded[2][:, CANONICAL_MIRROR] * flip)
-    est = from_canonical(canonical_est[:len(x)], "kinect_v2", x, obs)
+    return _gap_fill(from_canonical(canonical_est[:len(x)], "kinect_v2", x, obs), x, obs, min_gap_frames)
+
+
+def _gap_fill(est, x, obs, min_gap_frames):
+    """The gaps of >= min_gap_frames filled from est (T, J, 3), offset to meet the observed ends."""
     out = np.where(obs[..., None], x, np.nan)
     for j in range(x.shape[1]):  # joints and their gaps, one at a time
         seen = np.flatnonzero(obs[:, j])
@@ -136,3 +140,44 @@ def test_normalise_matches_its_definition(take, case):
     np.testing.assert_array_equal(y2[0], y)
     np.testing.assert_array_equal(obs2[0], obs)
     assert norms2[0].scale == norm.scale and norms2[0].theta == norm.theta
+
+
+class _NoPrior:
+    """The default prior that says which layouts it maps (its card) but fails the test when anything
+    else of it is read: its window, rate or networks (a fit)."""
+
+    def __init__(self):
+        self.card, self.n_joints = load_default_prior().card, load_default_prior().n_joints
+
+    def __getattr__(self, name):
+        raise AssertionError(f"the prior was used ({name}) where the observed anchors place the joints")
+
+
+@pytest.mark.parametrize("lost", [("HandTipLeft",), ("HandTipLeft", "ThumbLeft", "HandTipRight")])
+def test_lost_joints_the_canonical_body_lacks_ride_on_their_observed_anchors_without_a_fit(take, lost):
+    """A hand tip or thumb sits at its anchor + k (anchor - anchor's parent) + d whatever the prior
+    says (from_canonical's rule): with the anchors observed no latent fit is run (it cost 12 ms a
+    streamed window) and the observed anchors place them."""
+    x = np.nan_to_num(take.positions[82:134])  # every joint observed in these frames
+    obs = take.observed[82:134].copy()
+    assert obs.all()
+    cols = [KINECT_V2.index(n) for n in lost]
+    obs[:, cols[0]] = False  # never seen in the window
+    obs[10:40, cols[1:]] = False  # seen before and after a long gap
+    got, filled = fill_long_gaps(x, obs, 30.0, min_gap_frames=15, prior=_NoPrior())
+    canonical, _ = to_canonical(x, obs, "kinect_v2")
+    want = _gap_fill(from_canonical(canonical, "kinect_v2", x, obs), x, obs, 15)
+    assert filled[:, cols].any(axis=0).all() and not filled[:, [j for j in range(25) if j not in cols]].any()
+    np.testing.assert_allclose(got[filled], want[filled], rtol=0, atol=1e-9)
+    hand = KINECT_V2.index("HandLeft")
+    np.testing.assert_allclose(got[:, cols[0]], x[:, hand], atol=1e-9)  # never seen: at its observed anchor
+
+
+def test_a_lost_hand_tip_with_its_hand_lost_too_is_the_prior_s(take):
+    x = np.nan_to_num(take.positions[40:100])
+    obs = take.observed[40:100].copy()
+    obs[:, [KINECT_V2.index("HandTipLeft"), KINECT_V2.index("HandLeft")]] = False
+    with pytest.raises(AssertionError, match="the prior was used"):
+        fill_long_gaps(x, obs, 30.0, min_gap_frames=15, prior=_NoPrior())
+    got, filled = fill_long_gaps(x, obs, 30.0, min_gap_frames=15, prior=load_default_prior())
+    assert filled[:, KINECT_V2.index("HandTipLeft")].all() and np.isfinite(got[filled]).all()

@@ -32,7 +32,11 @@ How the other layers call it
   ends of the gap (an edge gap keeps the constant offset of its one observed end).
   The bridge passes it the newest ``prior_window_frames(rate_hz)`` frames (one latent fit
   per window solve) and keeps the excursion limit on the fills of the joints
-  ``limb_joint_mask(J, ("left_arm", "right_arm"), skeleton)`` marks.
+  ``limb_joint_mask(J, ("left_arm", "right_arm"), skeleton)`` marks. When every joint to fill
+  is one the canonical body lacks (an ear, a hand tip, a thumb) and its anchor is observed
+  throughout, no latent fit is run: such a joint sits at its anchor by ``from_canonical``'s
+  rule whatever the prior says, so the observed anchor places it (a pose estimator that
+  loses an ear for seconds cost a latent fit every window, more than doubling its stream's cost).
 
 D(z*) here is the chord method of ``streamfix.prior.latent``: one decoder-Jacobian call at
 E(Y) and ``CHORD_STEPS`` damped steps on it, the cost that fits the streaming budget. Both
@@ -238,6 +242,10 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
 
         maps = _matrices(layout)
         cx, cobs = _to_canonical(x, obs, maps)
+        if joints is not None and _carried_by_observed_anchors(maps, cobs, joints):
+            # the wanted joints (an ear, a hand tip) are placed at their anchors however the canonical
+            # body is got: the observed anchors place them with no latent fit (12 ms a streamed window)
+            return _from_canonical(cx, maps, x, obs, joints)
         est = _estimate(prior, cx, cobs, rate_hz, None, method, max_iter)
         if not np.isfinite(est).any():
             return np.full_like(x, np.nan)
@@ -280,6 +288,19 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
     if xr.shape[0] != n:
         est = _resample_full(est, prior.rate_hz, rate_hz, n)
     return est
+
+
+def _carried_by_observed_anchors(maps, canonical_observed: np.ndarray, joints: np.ndarray) -> bool:
+    """True when every joint in ``joints`` (J,) bool is a layout joint that is no canonical joint
+    and its anchor and the anchor's parent (``canonical._from_canonical``'s line) are observed
+    in every frame of ``canonical_observed`` (T, 20)."""
+    from streamfix.canonical import _PARENT_INDEX
+
+    wanted = np.flatnonzero(joints)
+    if wanted.size == 0 or maps.exact[wanted].any():
+        return False
+    anchors = maps.anchor[wanted]
+    return bool(canonical_observed[:, np.union1d(anchors, _PARENT_INDEX[anchors])].all())
 
 
 def solver_params_for_prior_init(D: np.ndarray, observed: np.ndarray, base=None, factor: float = PRIOR_INIT_RHO_FACTOR):

@@ -507,6 +507,7 @@ class BridgingWindowSolver:
                 counts[src] = int(use.sum())
         if unlimited is not None:
             limited &= ~np.asarray(unlimited, dtype=bool)
+        limited &= ext_obs.any(axis=0)[None, :]  # a joint never seen here has no baseline to keep it near
         if gain is not None and limited.any():
             # keep each model fill within the joint's recent range of motion of its
             # continuity baseline (hold from the last observed sample; linear once the
