@@ -22,6 +22,7 @@ __all__ = [
     "BLAZEPOSE_33",
     "KINECT_V1_UIPRMD",
     "COCO_17",
+    "CAMERA_SPACE_SKELETONS",
 ]
 
 
@@ -296,6 +297,12 @@ def get_skeleton(name: str) -> Skeleton:
         raise KeyError(
             f"unknown skeleton {name!r}; known skeletons: {', '.join(sorted(_REGISTRY))}"
         ) from None
+
+
+CAMERA_SPACE_SKELETONS = ("kinect_v2", "kinect_v1_uiprmd", "azure_kinect", "coco17", "mediapipe_pose")
+"""Layouts of depth sensors and pose estimators, whose streams come in the sensor's camera space
+(the sensor at the origin, metres): what ``streamfix.core.ray_depth`` needs to know where a
+joint's camera ray runs. Optical markers and BVH takes are in a room's coordinates."""
 
 
 def skeleton_names() -> list[str]:

@@ -127,6 +127,18 @@ to the low-rank solver and the long-gap bridge: a third of the engine's time on 
 recordings, for a KERAAL score within 0.1 mm. Nothing is judged before the engine has the
 body's lengths. ``tests/test_dislocated.py`` measures it on the KERAAL take.
 
+Joints read at the wrong depth put back on their ray (``repair_depth``, on by default)
+----------------------------------------------------------------------------------
+A joint a depth sensor read the depth behind it for (a thin limb on the body's silhouette:
+the wall's depth, metres back along the joint's own camera ray) has a stretched bone and
+sits far along its ray from where its good samples around put it. Before anything else looks
+at lengths (foot support, the dislocated ends, the jumps), it is moved back along the ray to
+its bone's length and enters the window pipeline as a low-confidence observation
+(``fill_confidence``), flagged ``recovered`` (:mod:`streamfix.core.ray_depth`). Only for
+:data:`streamfix.skeletons.CAMERA_SPACE_SKELETONS` (a room's coordinates have no sensor at the
+origin), and not before the engine has the body's lengths. ``benchmarks/results/sensor.md``
+(``depth``) has the figures; the live path repairs the same way, frame by frame.
+
 Limbs that jumped as one piece released (``release_jumps``, on by default)
 -------------------------------------------------------------------------
 A forearm with its hand, or a shin with its foot, that the sensor moved by a decimetre or
@@ -164,7 +176,7 @@ import numpy as np
 from ..core.excursion import (EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion,
                               parents_from_bones, travel_speed)
 from ..core.interpolate import missing_run_lengths
-from ..skeletons import Skeleton
+from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
 from .solver_api import RELEASED_KEY, WindowOutput
 
@@ -311,7 +323,8 @@ class BridgingWindowSolver:
     unless the body travels this fast (:data:`TRAVEL_SPEED_MPS`; None = always limited).
     ``history_s``: seconds of clean history the PCA trains on (the engine keeps
     :data:`HISTORY_S`). ``release_frozen`` / ``release_dislocated`` / ``release_jumps`` /
-    ``verify_inferred`` / ``foot_support`` / ``undo_swaps``: the real-sensor stages in the module doc.
+    ``verify_inferred`` / ``foot_support`` / ``undo_swaps`` / ``repair_depth``: the real-sensor stages in the
+    module doc.
     ``limit_released``: the excursion limit also holds the fills of released frozen samples
     near the frozen pose (off: see "Frozen inferred limbs released" in the module doc).
     """
@@ -341,6 +354,7 @@ class BridgingWindowSolver:
         release_dislocated: bool = True,
         release_jumps: bool = True,
         limit_released: bool = False,
+        repair_depth: bool = True,
     ) -> None:
         if base is None:
             from ..core.pipeline import clean_window
@@ -358,6 +372,7 @@ class BridgingWindowSolver:
         self.release_frozen = bool(release_frozen)
         self.release_dislocated = bool(release_dislocated)
         self.release_jumps = bool(release_jumps)
+        self.repair_depth = bool(repair_depth)
         self.limit_released = bool(limit_released)
         self._limb_joints: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # limb joints, mirrors
         if prior_method not in ("latent", "encode"):
@@ -619,6 +634,16 @@ class BridgingWindowSolver:
             x, conf, verified = self._verify_inferred(x, conf, obs, bones, rate_hz, history, skeleton)
             if verified is not None:
                 replaced = verified if replaced is None else (replaced | verified)
+        if self.repair_depth and skeleton is not None and skeleton.name in CAMERA_SPACE_SKELETONS:
+            # joints the sensor read the background's (or an occluder's) depth for, thrown along
+            # their camera ray (core/ray_depth.py): moved back along it to their bone's length, a
+            # low-confidence observation the window pipeline smooths with the rest
+            from ..core.ray_depth import repair_ray_depth
+
+            x, along_ray = repair_ray_depth(x, conf, bones, bone_lengths)
+            if along_ray.any():
+                conf = np.where(along_ray, self.fill_confidence, conf)
+                replaced = along_ray if replaced is None else (replaced | along_ray)
         if self.foot_support and skeleton is not None:
             # legs the sensor folded up while a foot must be on the floor (streaming/support.py);
             # undone before the window pipeline, which then smooths the fix with everything else

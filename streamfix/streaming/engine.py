@@ -147,7 +147,7 @@ from ..core.filters import twiced_binomial_taps
 from ..core.pose_bias import correction_gain
 from ..core.pose_bias_live import LivePoseBias
 from ..frames import BodyFrame, SkeletonFrame, check_frame
-from ..skeletons import Skeleton
+from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from ..limbs import mirror_bones
 from ..sensor_bias.shipped import resolve_sensor_bias
 from .blending import HANDOVER_S, crossfade_frames, handover_weights, next_window_end
@@ -644,7 +644,8 @@ class StreamEngine:
                 if returning:
                     self.counters["bodies_reidentified"] += 1
                 body = Body(bid, g, self.cfg, self.skeleton, self._backlog, prior)
-                body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live)
+                body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live,
+                                          camera_space=self.skeleton.name in CAMERA_SPACE_SKELETONS)
                 lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
                 body.live_path.set_bone_lengths(lengths)
                 ordinal = self.counters["bodies_seen"] if self._body_ordinal is None else self._body_ordinal()

@@ -2,6 +2,11 @@
 
 Per body and per frame, all vectorised across joints (microseconds, no solver):
 
+0. **Depth along the ray** (on a path built with ``camera_space``, ``repair_depth``): a
+   raw sample whose bone is stretched because the sensor read the depth behind it (far
+   along its camera ray from the last output) is moved back along the ray to its bone's
+   length (:func:`streamfix.core.ray_depth.repair_ray_depth`, with the last output as the
+   reference), flagged recovered; a few array operations when nothing is stretched.
 1. **Outlier gate** (per coordinate), default ``gate='theil_sen'``: the reference is
    the Theil-Sen line through the last ``gate_frames`` (7) *raw* samples of the
    coordinate (slope = median of pairwise slopes, breakdown point 29 %), evaluated at
@@ -49,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core import kernels
+from ..core import kernels, ray_depth
 from ..core.filters import HoltFilter as _HOLT
 
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
@@ -76,7 +81,10 @@ class LiveConfig:
     ('theil_sen' gate); project_tracked: the projection moves tracked joints the gate
     accepted too (without propagation it moves only joints the gate replaced or the sensor
     lost: a depth sensor's bones vary by centimetres, and moving its tracked joints onto
-    the robust lengths cost 1-3 mm of debiased error against Vicon on UI-PRMD and KERAAL).
+    the robust lengths cost 1-3 mm of debiased error against Vicon on UI-PRMD and KERAAL);
+    repair_depth: a raw sample thrown along its camera ray (a depth read off the background,
+    :mod:`streamfix.core.ray_depth`) is moved back along it first, on a path built with
+    ``camera_space`` (the engine: a depth sensor's or pose estimator's layout).
     """
 
     filter: str = "one_euro"
@@ -92,6 +100,7 @@ class LiveConfig:
     propagate: bool = False
     rigid_release: bool = True
     project_tracked: bool = False
+    repair_depth: bool = True
 
     def __post_init__(self) -> None:
         if self.filter not in ("one_euro", "holt", "none"):
@@ -202,8 +211,10 @@ def _make_filter(cfg: LiveConfig, rate_hz: float):
 class LivePath:
     """Causal per-body estimator: ``step(x, valid, t) -> (positions, recovered)``."""
 
-    def __init__(self, n_joints: int, bones: np.ndarray, rate_hz: float, config: LiveConfig = LiveConfig()) -> None:
+    def __init__(self, n_joints: int, bones: np.ndarray, rate_hz: float, config: LiveConfig = LiveConfig(),
+                 camera_space: bool = False) -> None:
         self.cfg = config
+        self._repair_depth = bool(config.repair_depth and camera_space)
         self.n_joints = n_joints
         self.rate_hz = float(rate_hz)
         self.levels = tree_levels(bones, n_joints)
@@ -214,6 +225,7 @@ class LivePath:
         self._params = (config.min_cutoff, config.beta, config.d_cutoff, config.gate_min_m, config.gate_k)
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
+        self._bone_len = None  # (B,) m once set_bone_lengths gives them: the depth repair's
         self._release_order = _release_order(self.levels)
         self._release_flat = np.ascontiguousarray(np.concatenate(self._release_order) if self._release_order
                                                   else np.zeros(0, dtype=np.intp), dtype=np.intp)
@@ -242,6 +254,7 @@ class LivePath:
             lengths = np.asarray(lengths, dtype=np.float64)
             child_len[self.bones[:, 1]] = lengths
         self._child_len = child_len
+        self._bone_len = child_len[self.bones[:, 1]] if len(self.bones) else None
 
     def anchor(self, recent: np.ndarray) -> None:
         """Re-anchor the gate's history on a solved window's newest frames.
@@ -302,8 +315,26 @@ class LivePath:
         """One frame: raw ``(J, 3)`` m (NaN missing), ``valid (J,)``, time ``t`` s.
 
         Returns ``(positions (J, 3), recovered (J,) bool)``; ``recovered`` marks
-        joints that were missing or whose sample the gate replaced.
+        joints that were missing or whose sample the gate replaced (or the depth repair moved).
         """
+        if not self._repair_depth or self._bone_len is None:
+            return self._step(x, valid, t)
+        # the repair's own first test, on the tree's bones at once: nothing stretched, nothing to judge
+        parent, child = self._tree_pc
+        length = self._child_len[child]
+        bone = np.linalg.norm(x[child] - x[parent], axis=1)
+        if not (bone - length > np.maximum(ray_depth.FRACTION * length, ray_depth.FLOOR_M)).any():
+            return self._step(x, valid, t)
+        # judged against the body's lengths and the last output (where each joint was expected)
+        fixed, moved = ray_depth.repair_ray_depth(x[None], valid[None].astype(np.float64), self.bones, self._bone_len,
+                                        reference=self._last[None])
+        if not moved.any():
+            return self._step(x, valid, t)
+        y, rec = self._step(fixed[0], valid, t)
+        return y, rec | moved[0]
+
+    def _step(self, x: np.ndarray, valid: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`step` after the depth repair."""
         cfg = self.cfg
         if self._fused and kernels.COMPILED:  # the default chain in one compiled call, same values
             return self._step_compiled(x, valid, t)

@@ -1,0 +1,170 @@
+"""Joints a depth sensor put at the wrong depth along their own camera ray.
+
+Why: a sensor that measures depth per pixel (stereo, time of flight) places a joint where
+its image position meets the depth it reads there. Where a thin limb (a wrist, a hand, a
+shin) lies on the body's silhouette, that depth can come from the wall behind it or from
+something in front: a DepthAI spatial keypoint takes the median depth within 10 px of the
+2-D keypoint, which flips to the background once most of those pixels miss the limb. The
+joint is then thrown metres back *along the ray from the camera through it*, while its
+image position, the part the pose network got right, is kept. Such runs last as long as the
+limb stays on the edge (seconds), so the window's robust temporal fit follows them and the
+bone projection splits the error between the two ends; the live gate re-acquires the new
+place after a few frames.
+
+The repair: a joint whose bone to its parent is longer than the body's length by
+``FRACTION`` of it and ``FLOOR_M``, whose camera ray passes within the bone's length of the
+parent (moving it along the ray can give the bone its length back) and whose parent sits
+where its own bone allows, is moved along its ray to the point at the bone's length from the
+parent: ``|s u - p| = L`` with ``u`` the unit ray through the joint, two roots
+``s = u.p +- sqrt(L^2 - |p|^2 + (u.p)^2)``. The root nearest the joint's offset to its
+parent in the good samples around it (interpolated in time) is taken, else the one on the
+sensor's side of the two (nearest the raw sample). Parents first: an elbow put back moves
+the point its wrist is judged from.
+
+The coordinates must be a sensor's camera space (the sensor at the origin): the caller
+says so by the layout (depth sensors and pose estimators, not optical markers or BVH), and a
+frame whose trunk is nearer the origin than ``MIN_SENSOR_DISTANCE_M`` (a take re-centred on
+the body) is left alone.
+
+Arrays: positions ``(T, J, 3)`` metres, confidence ``(T, J)``, bones ``(B, 2)`` (parent, child).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .bone_rotations import topological_order
+from .excursion import parents_from_bones
+from .interpolate import interpolate_linear
+
+__all__ = ["repair_ray_depth", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "SIDEWAYS_RATIO",
+           "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M"]
+
+FRACTION = 0.5
+"""A bone longer than the body's length by this fraction of it (and ``FLOOR_M``) is judged."""
+
+FLOOR_M = 0.08
+"""...and by this much (m): a depth read off the background is decimetres to metres off,
+while a Kinect's or a stereo camera's depth noise moves a joint by a few centimetres."""
+
+RAY_SLACK = 0.1
+"""The ray may pass up to this fraction of the bone's length beyond it from the parent (the
+joint then goes to the ray's point nearest the parent): the body's length is an estimate."""
+
+RAY_NOISE_M = 0.03
+"""...and this much (m): the joints' own noise moves a short bone's ray (a hand's, 8 cm) off it."""
+
+SIDEWAYS_RATIO = 0.5
+"""A sample whose departure from where it is expected has a part across the ray larger than
+this times its part along the ray was not thrown along it (a random-direction jump)."""
+
+PROXIMAL_FRACTION = 0.25
+"""The parent is trusted only where its own bone is within this fraction of its length (a
+bone does not say which end is wrong; a parent off its length is judged first, or not)."""
+
+MIN_SENSOR_DISTANCE_M = 0.5
+"""A frame whose joints' mean lies nearer the origin than this is not in a sensor's camera space."""
+
+
+def _levels(parents: np.ndarray) -> list[np.ndarray]:
+    """Joints grouped by depth in the tree, roots first (each group's parents are in earlier groups)."""
+    order = topological_order(parents)
+    depth = np.zeros(len(parents), dtype=np.intp)
+    for j in order:
+        depth[j] = depth[parents[j]] + 1 if parents[j] >= 0 else 0
+    return [np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1)] if len(depth) else []
+
+
+def repair_ray_depth(
+    positions: np.ndarray,
+    confidence: np.ndarray,
+    bones: np.ndarray,
+    bone_lengths: np.ndarray | None,
+    *,
+    fraction: float = FRACTION,
+    floor_m: float = FLOOR_M,
+    ray_slack: float = RAY_SLACK,
+    proximal_fraction: float = PROXIMAL_FRACTION,
+    joints: np.ndarray | None = None,
+    reference: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(positions, repaired)``: the samples judged thrown along their camera ray (module doc)
+    moved back along it to their bone's length, and the ``(T, J)`` bool mask of those samples.
+
+    ``bone_lengths`` ``(B,)`` m: the body's lengths (NaN: that bone is not judged; None:
+    nothing is). ``joints`` ``(J,)`` bool: only these joints are judged (None = every one).
+    ``reference`` ``(T, J, 3)`` m: where each joint is expected (NaN: unknown), in place of
+    the interpolation between its good samples: a causal caller (the live path, one frame at
+    a time) passes its last output."""
+    x = np.array(positions, dtype=np.float64)
+    conf = np.asarray(confidence, dtype=np.float64)
+    T, J = conf.shape
+    done = np.zeros((T, J), dtype=bool)
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    if T == 0 or not len(b) or bone_lengths is None:
+        return x, done
+    parents = parents_from_bones(b, J)
+    length = np.full(J, np.nan)
+    length[b[:, 1]] = np.asarray(bone_lengths, dtype=np.float64)
+    judged = np.isfinite(length) & (length > 0)
+    if joints is not None:
+        judged &= np.asarray(joints, dtype=bool)
+    if not judged.any():
+        return x, done
+    seen = (conf > 0) & np.isfinite(x).all(axis=2)
+    pj = np.where(parents >= 0, parents, 0)
+
+    def stretched(pos: np.ndarray) -> np.ndarray:
+        bone = np.linalg.norm(pos - pos[:, pj], axis=2)
+        return seen & seen[:, pj] & judged & (bone - length > np.maximum(fraction * length, floor_m))
+
+    raw_stretched = stretched(x)
+    if not raw_stretched.any():  # the common case: nothing to judge
+        return x, done
+    # where each joint's own good samples around a run put it: a sample thrown along its ray
+    # departs from that along the ray, while a good one whose parent was thrown (or put back
+    # at the wrong one of its two roots) does not
+    if reference is None:
+        own_good = seen & ~raw_stretched
+        own = interpolate_linear(np.where(own_good[..., None], x, np.nan), own_good)[0]
+    else:
+        own = np.asarray(reference, dtype=np.float64)
+    centre = np.nanmean(np.where(seen[..., None], x, np.nan), axis=1)  # (T, 3)
+    camera = np.linalg.norm(centre, axis=1) >= MIN_SENSOR_DISTANCE_M  # NaN (no joint seen): False
+    into_ok = np.ones((T, J), dtype=bool)  # each joint's own bone within proximal_fraction (roots: True)
+    for level in _levels(parents):
+        p = parents[level]
+        L = length[level]
+        bone = np.linalg.norm(x[:, level] - x[:, p], axis=2)
+        cand = stretched(x)[:, level] & camera[:, None] & into_ok[:, p]
+        if cand.any():
+            dist = np.linalg.norm(x[:, level], axis=2)
+            u = x[:, level] / np.where(dist > 0, dist, 1.0)[..., None]  # unit ray through the joint
+            along = (u * x[:, p]).sum(axis=2)  # s of the ray's point nearest the parent
+            miss2 = (x[:, p] ** 2).sum(axis=2) - along ** 2  # squared distance of that point to the parent
+            reach = L * (1.0 + ray_slack) + RAY_NOISE_M
+            off = x[:, level] - own[:, level]  # NaN: no good sample
+            departure = (off * u).sum(axis=2)
+            sideways = np.linalg.norm(off - departure[..., None] * u, axis=2)
+            departure = np.abs(departure)
+            # thrown along the ray: far from where the joint is expected, and mostly along the ray
+            # (a joint thrown in another direction is the jump stage's: moved along its ray, it
+            # would keep the sideways part of its error)
+            along_ray = ~(departure <= np.maximum(fraction * L, floor_m)) & ~(sideways > SIDEWAYS_RATIO * departure)
+            cand &= (miss2 <= reach ** 2) & (along > 0) & along_ray
+        if cand.any():
+            h = np.sqrt(np.maximum(L ** 2 - miss2, 0.0))
+            near, far = (along - h)[..., None] * u, (along + h)[..., None] * u
+            if reference is None:  # the joint's offset to its parent in the good samples around each run, in time
+                good = seen[:, level] & seen[:, p] & ~cand
+                offset = np.where(good[..., None], x[:, level] - x[:, p], np.nan)
+                guess = interpolate_linear(offset, good)[0] + x[:, p]
+            else:
+                guess = x[:, p] + (own[:, level] - own[:, p])
+            ref = np.where(np.isfinite(guess).all(axis=2)[..., None], guess, x[:, level])
+            use_near = np.linalg.norm(near - ref, axis=2) <= np.linalg.norm(far - ref, axis=2)
+            fixed = np.where(use_near[..., None], near, far)
+            x[:, level] = np.where(cand[..., None], fixed, x[:, level])
+            done[:, level] = cand
+            bone = np.where(cand, np.linalg.norm(x[:, level] - x[:, p], axis=2), bone)
+        into_ok[:, level] = ~judged[level] | (np.abs(bone - L) <= proximal_fraction * L) | ~np.isfinite(L)
+    return x, done
