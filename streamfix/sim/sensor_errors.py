@@ -40,6 +40,14 @@ Error kinds (:data:`KINDS`):
 ``jump``
     Sudden jump: a joint, or a limb's distal part, offset by a step of ``15 cm + Exp``
     metres in a random direction that persists for ``jump_frames`` and then returns.
+``depth``
+    A limb joint (elbow, wrist, hand, knee, ankle, foot) read at the depth of a wall
+    ``depth_behind_m`` behind it for ``depth_frames``, along its own camera ray (its image
+    position kept): what a sensor that reads depth per pixel gives a thin limb on the body's
+    silhouette (a DepthAI spatial keypoint is the median depth within 10 px of the 2-D
+    keypoint). Not in the mix, and its parameters are assumed, not estimated: the Kinect
+    recordings here have none (its skeleton tracker reads depth off the body it segments), and
+    no per-pixel-depth pose recordings are in the shared data.
 
 ``mix`` (:func:`apply_sensor_errors` with ``kinds=MIX_KINDS``) applies all of them at the
 rates estimated from real recordings. The estimates, their units and how they were
@@ -71,9 +79,10 @@ __all__ = [
     "MIRROR",
     "SWAP_LIMBS",
     "DISTAL_SEGMENTS",
+    "ASSUMED_PARAMETERS",
 ]
 
-KINDS = ("noise", "swap", "freeze", "dropout", "spike", "stretch", "jump", "flagged")
+KINDS = ("noise", "swap", "freeze", "dropout", "spike", "stretch", "jump", "flagged", "depth")
 # the realistic mix: limb failures come as ``freeze`` with ``freeze_missing_fraction`` of
 # them flagged missing (``dropout`` alone is the all-missing variant, for scoring gap filling)
 MIX_KINDS = ("noise", "swap", "freeze", "spike", "stretch", "jump")
@@ -124,6 +133,10 @@ def _default(name: str):
     return field(default=tuple(value) if isinstance(value, list) else float(value))
 
 
+ASSUMED_PARAMETERS = ("depth_rate_hz", "depth_frames", "depth_behind_m")
+"""Fields of :class:`SensorErrorParams` that are assumed, not estimated (not in ``sensor_errors.json``)."""
+
+
 @dataclass(frozen=True)
 class SensorErrorParams:
     """Rates, sizes and durations of each error kind (defaults: estimated, docs/SENSOR_ERRORS.md).
@@ -137,6 +150,8 @@ class SensorErrorParams:
     missing. ``spike_rate`` per joint-frame, ``spike_size_m`` median m. ``stretch_rate_hz``
     1/s per limb, ``stretch_frames`` frames, ``stretch_fraction`` peak lengthening.
     ``jump_rate_hz`` 1/s per joint, ``jump_size_m`` median m, ``jump_frames`` frames.
+    ``depth_rate_hz`` 1/s per limb joint, ``depth_frames`` frames, ``depth_behind_m`` m
+    (assumed, not in ``sensor_errors.json``).
     """
 
     noise_sigma_m: tuple[float, float, float] = _default("noise_sigma_m")
@@ -157,6 +172,10 @@ class SensorErrorParams:
     jump_rate_hz: float = _default("jump_rate_hz")
     jump_size_m: float = _default("jump_size_m")
     jump_frames: tuple[float, float] = _default("jump_frames")
+    # assumed (ASSUMED_PARAMETERS, the module doc's ``depth``): one event every ~4 s among the 12 limb joints
+    depth_rate_hz: float = 0.02
+    depth_frames: tuple[float, float] = (3.0, 60.0)
+    depth_behind_m: tuple[float, float] = (0.5, 2.5)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -168,7 +187,8 @@ class SensorErrorParams:
         for name in ("freeze_still_fraction", "freeze_missing_fraction"):
             if getattr(self, name) > 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        for name in ("swap_frames", "freeze_s", "stretch_frames", "stretch_fraction", "jump_frames"):
+        for name in ("swap_frames", "freeze_s", "stretch_frames", "stretch_fraction", "jump_frames", "depth_frames",
+                     "depth_behind_m"):
             lo, hi = getattr(self, name)
             if lo > hi:
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
@@ -337,10 +357,33 @@ def _jump(X, conf, rng, p, rate_hz, min_events):
     return mask
 
 
+DEPTH_JOINTS = np.array([_K(f"{j}{side}") for side in ("Left", "Right")
+                         for j in ("Elbow", "Wrist", "Hand", "Knee", "Ankle", "Foot")])
+DEPTH_MIN_M = 1.0  # a joint nearer the sensor than this has no wall behind it in a room
+
+
+def _depth(X, conf, rng, p, rate_hz, min_events):
+    T = X.shape[0]
+    mask = np.zeros(conf.shape, dtype=bool)
+    for _ in range(_count(rng, p.depth_rate_hz * len(DEPTH_JOINTS) * T / rate_hz, min_events)):
+        j = int(DEPTH_JOINTS[int(rng.integers(len(DEPTH_JOINTS)))])
+        for _try in range(20):  # a span where the joint stands in the room, in front of the sensor
+            s, e = _span(rng, p.depth_frames, T)
+            if (X[s:e, j, 2] > DEPTH_MIN_M).all():
+                break
+        else:
+            continue
+        z = X[s:e, j, 2]
+        wall = z.max() + rng.uniform(*p.depth_behind_m)
+        X[s:e, j] *= (wall / z)[:, None]  # the same ray from the sensor, the wall's depth
+        mask[s:e, j] = True
+    return mask
+
+
 # order of application in a mix: noise on every sample first, limb failures last (a
 # frozen limb holds a value the sensor reported, a missing one has none)
 _APPLY = {"noise": _noise, "swap": _swap, "stretch": _stretch, "jump": _jump, "spike": _spike,
-          "freeze": _freeze, "dropout": _dropout, "flagged": _flagged}
+          "depth": _depth, "freeze": _freeze, "dropout": _dropout, "flagged": _flagged}
 
 
 def apply_sensor_errors(
@@ -356,7 +399,7 @@ def apply_sensor_errors(
     Event counts are Poisson with the estimated rates (``params``) over the take's length
     ``T / rate_hz`` s, but at least ``min_events`` per kind (a protocol scoring one kind
     needs it to happen). Kinds apply in a fixed order (noise, swap, stretch, jump, spike,
-    freeze, dropout) whatever the order given; a later kind may overwrite an earlier one's
+    depth, freeze, dropout) whatever the order given; a later kind may overwrite an earlier one's
     joint-frames (both masks then mark them). Returns a :class:`Corruption`.
     """
     X = np.array(truth, dtype=np.float64)
