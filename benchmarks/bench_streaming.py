@@ -157,7 +157,7 @@ def live_latency(bodies, n_frames: int, cfg: EngineConfig) -> dict:
     from streamfix.streaming.live import LivePath
     from streamfix.streaming.ring import RingBuffer
 
-    paths = [LivePath(KINECT_V2.n_joints, KINECT_V2.bone_array, RATE, cfg.live) for _ in bodies]
+    paths = [LivePath(KINECT_V2.n_joints, KINECT_V2.bone_array, RATE, cfg.live, camera_space=True) for _ in bodies]
     rings = [RingBuffer(cfg.window, KINECT_V2.n_joints) for _ in bodies]
     lengths = np.full(KINECT_V2.n_bones, 0.25)
     for p in paths:

@@ -59,7 +59,7 @@ def test_a_joint_thrown_across_its_ray_is_left_to_the_jump_stage(thrown):
     truth, _, conf, _ = thrown
     x = apply_sensor_errors(truth, np.random.default_rng(3), kinds=("noise",)).positions
     j = KINECT_V2.index("WristRight")
-    ray = x[120:180, j] / np.linalg.norm(x[100:160, j], axis=1, keepdims=True)
+    ray = x[120:180, j] / np.linalg.norm(x[120:180, j], axis=1, keepdims=True)
     across = np.cross(ray, [0.0, 1.0, 0.0])
     x[120:180, j] += 0.4 * across / np.linalg.norm(across, axis=1, keepdims=True)  # 40 cm sideways
     _, repaired = repair_ray_depth(x, conf, BONES, _lengths(truth))
@@ -129,3 +129,70 @@ def test_a_bone_thrown_for_most_of_the_memory_takes_its_twins_length(thrown):
     assert est[twin] == pytest.approx(np.median(raw[:, twin]), abs=0.003)
     others = np.setdiff1d(np.arange(len(BONES)), [k])
     np.testing.assert_allclose(est[others], np.median(raw[:, others], axis=0), atol=0.004)
+
+
+# One arm in a sensor's camera space, each check of the repair on its own: shoulder (root),
+# elbow 0.3 m below it, wrist 0.25 m from the elbow at 45 degrees towards the sensor, 2.5 m away.
+ARM = np.array([[0, 1], [1, 2]])
+ARM_LENGTHS = np.array([0.3, 0.25])
+D = 0.25 / np.sqrt(2.0)
+POSE = np.array([[0.2, 0.3, 2.5], [0.2, 0.0, 2.5], [0.2 + D, 0.0, 2.5 - D]])
+BEHIND = np.array([0.2 + D, 0.0, 2.5 + D])  # the wrist as far behind the elbow
+
+
+def _arm(frames: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    return np.repeat(POSE[None], frames, axis=0), np.ones((frames, 3))
+
+
+def _thrown_to(x: np.ndarray, rows, joint: int, depth: float) -> None:
+    x[rows, joint] *= depth / x[rows, joint, 2:3]  # along its ray to that depth
+
+
+def test_without_a_reference_the_wrist_goes_to_the_sensors_side_of_its_two_points():
+    """No good sample to say which of the two points on the ray at the forearm's length from the
+    elbow is right: the wall the depth came from is behind the limb, so the one nearer the
+    sensor. The live path's first frame is such a case."""
+    x, conf = _arm(1)
+    _thrown_to(x, 0, 2, 4.0)
+    for reference in (None, np.full((1, 3, 3), np.nan)):
+        y, done = repair_ray_depth(x, conf, ARM, ARM_LENGTHS, reference=reference)
+        assert done[0, 2]
+        np.testing.assert_allclose(y[0, 2], POSE[2], atol=1e-9)
+
+
+def test_the_point_behind_the_elbow_is_taken_when_the_wrists_own_samples_say_so():
+    x, conf = _arm()
+    x[:, 2] = BEHIND  # the wrist behind the elbow in every good frame
+    _thrown_to(x, slice(3, 6), 2, 4.5)
+    y, done = repair_ray_depth(x, conf, ARM, ARM_LENGTHS)
+    assert done[3:6, 2].all() and done.sum() == 3
+    np.testing.assert_allclose(y[3:6, 2], np.repeat(BEHIND[None], 3, axis=0), atol=1e-9)
+
+
+@pytest.mark.parametrize("case", ["sideways", "ray_misses", "parent_off", "near_origin", "small_departure"])
+def test_each_check_alone_keeps_a_sample_that_was_not_thrown_along_its_ray(case):
+    """Each case breaks exactly one condition of the repair; the stretch holds in all."""
+    x, conf = _arm()
+    rows = slice(3, 6)
+    reference = None
+    if case == "sideways":  # as far across its ray as along it, which still passes within reach of the elbow
+        x[rows, 2] += [-0.4, -0.1, 0.5]
+    elif case == "ray_misses":  # no reference: only the reach can tell; this ray passes 0.5 m from the elbow
+        x[rows, 2] = [0.9, 0.0, 3.5]
+        reference = np.full_like(x, np.nan)
+    elif case == "parent_off":  # the elbow 0.2 m off its bone, across its ray: nothing below it is judged
+        x[rows, 1] += [0.0, -0.2, 0.0]
+        _thrown_to(x, rows, 2, 4.0)
+    elif case == "near_origin":  # the same throw in coordinates centred on the body
+        _thrown_to(x, rows, 2, 4.0)
+        x -= POSE.mean(axis=0)
+    elif case == "small_departure":  # 0.2 m along the ray (towards the sensor): a few decimetres is the floor
+        _thrown_to(x, rows, 2, 2.5 - D - 0.2)
+    assert (np.linalg.norm(x[rows, 2] - x[rows, 1], axis=1) - 0.25 > 0.125).all()  # stretched by half its length
+    y, done = repair_ray_depth(x, conf, ARM, ARM_LENGTHS, reference=reference)
+    assert not done.any()
+    np.testing.assert_array_equal(y, x)
+    if case not in ("ray_misses",):  # the same sample thrown along its ray instead is repaired
+        x2, _ = _arm()
+        _thrown_to(x2, rows, 2, 4.0)
+        assert repair_ray_depth(x2, conf, ARM, ARM_LENGTHS)[1][rows, 2].all()

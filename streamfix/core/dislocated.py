@@ -30,7 +30,7 @@ import functools
 import numpy as np
 
 from .bone_rotations import subtree_mask, topological_order
-from .excursion import parents_from_bones
+from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear, missing_run_lengths
 
 __all__ = ["dislocated_ends", "end_segments", "parent_relative_fill", "FRACTION", "FLOOR_M", "MIN_RUN_S", "PROXIMAL_FRACTION", "MAX_SUBTREE"]
@@ -64,13 +64,6 @@ def end_segments(bones: np.ndarray, n_joints: int, max_subtree: int = MAX_SUBTRE
     parents = parents_from_bones(b, n_joints)
     subtree = np.array([subtree_mask(parents, c) for c in b[:, 1]], dtype=bool).reshape(len(b), n_joints)
     return subtree & (subtree.sum(axis=1) <= max_subtree)[:, None]
-
-
-def _bone_into(bones: np.ndarray, n_joints: int) -> np.ndarray:
-    """``(J,)`` int: the index of the bone ending at each joint, -1 at a root."""
-    into = np.full(n_joints, -1)
-    into[bones[:, 1]] = np.arange(len(bones))
-    return into
 
 
 @functools.lru_cache(maxsize=32)
@@ -131,7 +124,7 @@ def dislocated_ends(
     # a bone does not say which of its ends is wrong: the distal one is released only where
     # the proximal one sits where its own bone allows (a wrist thrown off stretches the hand's
     # bone too, and it is the wrist that is wrong)
-    up = _bone_into(b, J)[b[k, 0]]  # the bone into each judged bone's proximal joint, -1 at a root
+    up = bone_into(b, J)[b[k, 0]]  # the bone into each judged bone's proximal joint, -1 at a root
     has_up = up >= 0
     if has_up.any():
         u = up[has_up]
@@ -166,7 +159,7 @@ def parent_relative_fill(positions: np.ndarray, released: np.ndarray, observed: 
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     J = x.shape[1]
     parents = parents_from_bones(b, J)
-    length = np.asarray(bone_lengths, dtype=np.float64)[_bone_into(b, J)]
+    length = np.asarray(bone_lengths, dtype=np.float64)[bone_into(b, J)]
     good = np.asarray(observed, dtype=bool) & ~rel
     order = topological_order(parents)
     todo = rel.any(axis=0) & (parents >= 0)

@@ -20,7 +20,8 @@ import numpy as np
 
 from .interpolate import continuity_baseline
 
-__all__ = ["EXCURSION_GAIN", "EXCURSION_HORIZON_S", "limit_excursion", "anchor_reference", "parents_from_bones", "travel_speed"]
+__all__ = ["EXCURSION_GAIN", "EXCURSION_HORIZON_S", "limit_excursion", "anchor_reference", "parents_from_bones",
+           "bone_into", "travel_speed"]
 
 EXCURSION_GAIN = 0.35
 """A fill may leave its continuity baseline (hold / linear) by at most this many times
@@ -52,12 +53,21 @@ def travel_speed(positions: np.ndarray, observed: np.ndarray, rate_hz: float) ->
     return float(np.linalg.norm(shift) * float(rate_hz) / (last - first))
 
 
+def bone_into(bones: np.ndarray, n_joints: int) -> np.ndarray:
+    """``(J,)`` int: the index of the bone ending at each joint, -1 at a root. A joint two bones
+    end at (MediaPipe's graph is no tree) takes the later-listed one, as :func:`parents_from_bones` does."""
+    into = np.full(int(n_joints), -1, dtype=np.intp)
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    np.maximum.at(into, b[:, 1], np.arange(len(b), dtype=np.intp))
+    return into
+
+
 def parents_from_bones(bones: np.ndarray, n_joints: int) -> np.ndarray:
-    """``(J,)`` int: each joint's parent from ``(parent, child)`` bone pairs (-1 = root)."""
-    parents = np.full(int(n_joints), -1, dtype=np.int64)
+    """``(J,)`` int: each joint's parent from ``(parent, child)`` bone pairs (-1 = root; the
+    later-listed bone where two end at a joint, :func:`bone_into`)."""
     b = np.asarray(bones, dtype=np.int64).reshape(-1, 2)
-    parents[b[:, 1]] = b[:, 0]
-    return parents
+    into = bone_into(b, n_joints)
+    return np.where(into >= 0, b[np.maximum(into, 0), 0] if len(b) else -1, -1).astype(np.int64)
 
 
 def anchor_reference(positions: np.ndarray, observed: np.ndarray, parents: np.ndarray) -> np.ndarray:

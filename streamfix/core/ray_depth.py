@@ -18,25 +18,28 @@ where its own bone allows, is moved along its ray to the point at the bone's len
 parent: ``|s u - p| = L`` with ``u`` the unit ray through the joint, two roots
 ``s = u.p +- sqrt(L^2 - |p|^2 + (u.p)^2)``. The root nearest the joint's offset to its
 parent in the good samples around it (interpolated in time) is taken, else the one on the
-sensor's side of the two (nearest the raw sample). Parents first: an elbow put back moves
-the point its wrist is judged from.
+sensor's side of the two (the wall the depth came from is behind the limb), unless that one
+lies behind the sensor. Parents first: an elbow put back moves the point its wrist is judged
+from. A joint two bones end at (MediaPipe's graph) is judged by the later-listed one.
 
 The coordinates must be a sensor's camera space (the sensor at the origin): the caller
 says so by the layout (depth sensors and pose estimators, not optical markers or BVH), and a
-frame whose trunk is nearer the origin than ``MIN_SENSOR_DISTANCE_M`` (a take re-centred on
+frame whose seen joints' median is nearer the origin than ``MIN_SENSOR_DISTANCE_M`` (a take re-centred on
 the body) is left alone.
 
 Arrays: positions ``(T, J, 3)`` metres, confidence ``(T, J)``, bones ``(B, 2)`` (parent, child).
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from .bone_rotations import topological_order
-from .excursion import parents_from_bones
+from .bone_rotations import _levels as depth_levels
+from .excursion import bone_into
 from .interpolate import interpolate_linear
 
-__all__ = ["repair_ray_depth", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "SIDEWAYS_RATIO",
+__all__ = ["repair_ray_depth", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
            "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M"]
 
 FRACTION = 0.5
@@ -53,6 +56,12 @@ joint then goes to the ray's point nearest the parent): the body's length is an 
 RAY_NOISE_M = 0.03
 """...and this much (m): the joints' own noise moves a short bone's ray (a hand's, 8 cm) off it."""
 
+MIN_DEPARTURE_M = 0.25
+"""...and it must lie this far (m) along its ray from where its own samples around put it: a
+depth read off the background is decimetres to metres off, while a hand thrown 12 cm down and
+back is off its ray by centimetres, and the dislocated-end stage, which interpolates its offset
+to the wrist across the run, places it better (10 mm against 58 in ``tests/test_dislocated.py``)."""
+
 SIDEWAYS_RATIO = 0.5
 """A sample whose departure from where it is expected has a part across the ray larger than
 this times its part along the ray was not thrown along it (a random-direction jump)."""
@@ -62,16 +71,7 @@ PROXIMAL_FRACTION = 0.25
 bone does not say which end is wrong; a parent off its length is judged first, or not)."""
 
 MIN_SENSOR_DISTANCE_M = 0.5
-"""A frame whose joints' mean lies nearer the origin than this is not in a sensor's camera space."""
-
-
-def _levels(parents: np.ndarray) -> list[np.ndarray]:
-    """Joints grouped by depth in the tree, roots first (each group's parents are in earlier groups)."""
-    order = topological_order(parents)
-    depth = np.zeros(len(parents), dtype=np.intp)
-    for j in order:
-        depth[j] = depth[parents[j]] + 1 if parents[j] >= 0 else 0
-    return [np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1)] if len(depth) else []
+"""A frame whose joints' median lies nearer the origin than this is not in a sensor's camera space."""
 
 
 def repair_ray_depth(
@@ -102,9 +102,9 @@ def repair_ray_depth(
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     if T == 0 or not len(b) or bone_lengths is None:
         return x, done
-    parents = parents_from_bones(b, J)
-    length = np.full(J, np.nan)
-    length[b[:, 1]] = np.asarray(bone_lengths, dtype=np.float64)
+    into = bone_into(b, J)
+    parents = np.where(into >= 0, b[np.maximum(into, 0), 0], -1).astype(np.intp)
+    length = np.where(into >= 0, np.asarray(bone_lengths, dtype=np.float64)[np.maximum(into, 0)], np.nan)
     judged = np.isfinite(length) & (length > 0)
     if joints is not None:
         judged &= np.asarray(joints, dtype=bool)
@@ -128,10 +128,13 @@ def repair_ray_depth(
         own = interpolate_linear(np.where(own_good[..., None], x, np.nan), own_good)[0]
     else:
         own = np.asarray(reference, dtype=np.float64)
-    centre = np.nanmean(np.where(seen[..., None], x, np.nan), axis=1)  # (T, 3)
-    camera = np.linalg.norm(centre, axis=1) >= MIN_SENSOR_DISTANCE_M  # NaN (no joint seen): False
+    # the body's median joint, which the thrown joints themselves do not move (NaN: none seen)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frame with no joint seen
+        centre = np.nanmedian(np.where(seen[..., None], x, np.nan), axis=1)  # (T, 3)
+    camera = ~(np.linalg.norm(centre, axis=1) < MIN_SENSOR_DISTANCE_M) & seen.any(axis=1)
     into_ok = np.ones((T, J), dtype=bool)  # each joint's own bone within proximal_fraction (roots: True)
-    for level in _levels(parents):
+    for level, _ in depth_levels(parents.tobytes())[1:]:  # roots have no bone to judge
         p = parents[level]
         L = length[level]
         bone = np.linalg.norm(x[:, level] - x[:, p], axis=2)
@@ -149,7 +152,7 @@ def repair_ray_depth(
             # thrown along the ray: far from where the joint is expected, and mostly along the ray
             # (a joint thrown in another direction is the jump stage's: moved along its ray, it
             # would keep the sideways part of its error)
-            along_ray = ~(departure <= np.maximum(fraction * L, floor_m)) & ~(sideways > SIDEWAYS_RATIO * departure)
+            along_ray = ~(departure <= np.maximum(fraction * L, MIN_DEPARTURE_M)) & ~(sideways > SIDEWAYS_RATIO * departure)
             cand &= (miss2 <= reach ** 2) & (along > 0) & along_ray
         if cand.any():
             h = np.sqrt(np.maximum(L ** 2 - miss2, 0.0))
@@ -160,8 +163,10 @@ def repair_ray_depth(
                 guess = interpolate_linear(offset, good)[0] + x[:, p]
             else:
                 guess = x[:, p] + (own[:, level] - own[:, p])
-            ref = np.where(np.isfinite(guess).all(axis=2)[..., None], guess, x[:, level])
-            use_near = np.linalg.norm(near - ref, axis=2) <= np.linalg.norm(far - ref, axis=2)
+            known = np.isfinite(guess).all(axis=2)
+            use_near = np.where(known, np.linalg.norm(near - guess, axis=2) <= np.linalg.norm(far - guess, axis=2),
+                                True)  # no guess: the sensor's side
+            use_near &= along - h > 0  # never behind the sensor
             fixed = np.where(use_near[..., None], near, far)
             x[:, level] = np.where(cand[..., None], fixed, x[:, level])
             done[:, level] = cand

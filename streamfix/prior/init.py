@@ -33,10 +33,11 @@ How the other layers call it
   The bridge passes it the newest ``prior_window_frames(rate_hz)`` frames (one latent fit
   per window solve) and keeps the excursion limit on the fills of the joints
   ``limb_joint_mask(J, ("left_arm", "right_arm"), skeleton)`` marks. When every joint to fill
-  is one the canonical body lacks (an ear, a hand tip, a thumb) and its anchor is observed
-  throughout, no latent fit is run: such a joint sits at its anchor by ``from_canonical``'s
-  rule whatever the prior says, so the observed anchor places it (a pose estimator that
-  loses an ear for seconds cost a latent fit every window, more than doubling its stream's cost).
+  is one the canonical body lacks (an ear, a hand tip, a thumb) and its anchor (and the
+  anchor's parent) is observed throughout, no latent fit is run: ``from_canonical`` places
+  such a joint from its anchor alone, and the observed anchor is used in place of the
+  prior's reconstruction of it (a pose estimator that loses an ear for seconds cost a latent
+  fit every window, more than doubling its stream's cost).
 
 D(z*) here is the chord method of ``streamfix.prior.latent``: one decoder-Jacobian call at
 E(Y) and ``CHORD_STEPS`` damped steps on it, the cost that fits the streaming budget. Both
@@ -243,8 +244,9 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
         maps = _matrices(layout)
         cx, cobs = _to_canonical(x, obs, maps)
         if joints is not None and _carried_by_observed_anchors(maps, cobs, joints):
-            # the wanted joints (an ear, a hand tip) are placed at their anchors however the canonical
-            # body is got: the observed anchors place them with no latent fit (12 ms a streamed window)
+            # the wanted joints (an ear, a hand tip) follow their anchors by from_canonical's rule (anchor
+            # + k (anchor - its parent) + d, fitted where the joint was seen): with the anchors observed,
+            # those place them, with no latent fit (12 ms a streamed window) for the prior's copy of them
             return _from_canonical(cx, maps, x, obs, joints)
         est = _estimate(prior, cx, cobs, rate_hz, None, method, max_iter)
         if not np.isfinite(est).any():

@@ -480,10 +480,11 @@ def _source_kind(spec: str) -> str:
 
 
 def check_source(spec: str) -> None:
-    """Raise now what :func:`open_source` would raise for a source that cannot open, without
-    opening it: ``serve`` calls this before it spends seconds building the engine, so a
-    camera that is not attached or a mistyped file is said at once. A ZeroMQ endpoint is
-    checked when it is bound."""
+    """Raise now what :func:`open_source` would raise for a source that is known not to open
+    without opening it (an unknown spec, no such file, no DepthAI package, camera or model):
+    ``serve`` calls this before it spends seconds building the engine, so a camera that is
+    not attached or a mistyped file is said at once. A ZeroMQ endpoint is checked when it is
+    bound, a recording when it is read."""
     kind = _source_kind(spec)
     if kind == "depthai":
         from ..io.depthai_device import check_device, parse_depthai_spec

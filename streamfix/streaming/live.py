@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import kernels, ray_depth
+from ..core.excursion import bone_into
 from ..core.filters import HoltFilter as _HOLT
 
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
@@ -225,7 +226,15 @@ class LivePath:
         self._params = (config.min_cutoff, config.beta, config.d_cutoff, config.gate_min_m, config.gate_k)
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
-        self._bone_len = None  # (B,) m once set_bone_lengths gives them: the depth repair's
+        # each tree bone's index in ``bones`` (a joint two bones end at takes its tree bone's length)
+        index = {(int(a), int(c)): k for k, (a, c) in enumerate(self.bones)}
+        self._tree_bone = np.array([index[(int(a), int(c))] for a, c in tree], dtype=np.intp)
+        # the depth repair judges each joint by the later-listed bone into it (core.excursion.bone_into)
+        into = bone_into(self.bones, n_joints)
+        self._ray_child = np.flatnonzero(into >= 0)
+        self._ray_bone = into[self._ray_child]
+        self._ray_parent = self.bones[self._ray_bone, 0] if len(self.bones) else self._ray_child
+        self._bone_len = None  # (B,) m once set_bone_lengths gives them (the depth repair judges nothing before)
         self._release_order = _release_order(self.levels)
         self._release_flat = np.ascontiguousarray(np.concatenate(self._release_order) if self._release_order
                                                   else np.zeros(0, dtype=np.intp), dtype=np.intp)
@@ -250,11 +259,12 @@ class LivePath:
     def set_bone_lengths(self, lengths: np.ndarray | None) -> None:
         """Target ``(B,)`` bone lengths (m) for the projection; NaN/None leaves bones alone."""
         child_len = np.full(self.n_joints, np.nan)
+        self._bone_len = None
         if lengths is not None and len(self.bones):
             lengths = np.asarray(lengths, dtype=np.float64)
-            child_len[self.bones[:, 1]] = lengths
+            child_len[self._tree_pc[1]] = lengths[self._tree_bone]
+            self._bone_len = lengths
         self._child_len = child_len
-        self._bone_len = child_len[self.bones[:, 1]] if len(self.bones) else None
 
     def anchor(self, recent: np.ndarray) -> None:
         """Re-anchor the gate's history on a solved window's newest frames.
@@ -320,9 +330,8 @@ class LivePath:
         if not self._repair_depth or self._bone_len is None:
             return self._step(x, valid, t)
         # the repair's own first test, on the tree's bones at once: nothing stretched, nothing to judge
-        parent, child = self._tree_pc
-        length = self._child_len[child]
-        bone = np.linalg.norm(x[child] - x[parent], axis=1)
+        length = self._bone_len[self._ray_bone]
+        bone = np.linalg.norm(x[self._ray_child] - x[self._ray_parent], axis=1)
         if not (bone - length > np.maximum(ray_depth.FRACTION * length, ray_depth.FLOOR_M)).any():
             return self._step(x, valid, t)
         # judged against the body's lengths and the last output (where each joint was expected)
