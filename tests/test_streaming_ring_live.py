@@ -1,6 +1,8 @@
 """Ring buffer views and the causal live path (gate, filter, bone projection)."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -263,3 +265,28 @@ def test_live_projection_moves_only_joints_the_gate_replaced_or_the_sensor_lost(
     gap = np.linalg.norm(y[60:90, lost] - y[60:90, parent], axis=1)
     np.testing.assert_allclose(gap, lengths[bones[:, 1] == lost][0], rtol=1e-9)
     assert np.abs(y_all[kept] - y_free[kept]).max() > 0.01  # the old projection did move tracked joints
+
+
+def test_live_projection_of_a_joint_two_bones_end_at_uses_its_tree_bones_length():
+    """COCO-17's right hip hangs from the right shoulder in the live path's tree, and the
+    hips' bone ends at it too: a lost right hip is put back at the shoulder-hip length from
+    the shoulder, not at the hip width (the later-listed bone's length it was given)."""
+    from streamfix.skeletons import COCO_17
+    from streamfix.streaming.live import LivePath
+
+    fixture = np.load(Path(__file__).resolve().parent / "fixtures" / "depthai_coco17_wavehand.npz")
+    kp = fixture["keypoints_mm"].astype(np.float64) / 1000.0
+    pos = np.stack([-kp[..., 0], kp[..., 1], kp[..., 2]], axis=-1)  # the protocol's camera axes
+    bones = COCO_17.bone_array
+    lengths = np.nanmedian(np.linalg.norm(pos[:, bones[:, 1]] - pos[:, bones[:, 0]], axis=2), axis=0)
+    hip, shoulder = COCO_17.index("right_hip"), COCO_17.index("right_shoulder")
+    k = int(np.flatnonzero((bones[:, 0] == shoulder) & (bones[:, 1] == hip))[0])
+    assert abs(lengths[k] - lengths[int(np.flatnonzero(bones[:, 1] == hip)[-1])]) > 0.1  # the two bones differ
+    live = LivePath(17, bones, 30.0, camera_space=True)
+    live.set_bone_lengths(lengths)
+    for t in range(20):
+        valid = np.ones(17, dtype=bool)
+        if t == 19:
+            valid[hip] = False  # lost: the projection places it
+        y, _ = live.step(np.where(valid[:, None], pos[t], np.nan), valid, t / 30.0)
+    assert np.linalg.norm(y[hip] - y[shoulder]) == pytest.approx(lengths[k], abs=0.01)
