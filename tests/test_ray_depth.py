@@ -196,3 +196,15 @@ def test_each_check_alone_keeps_a_sample_that_was_not_thrown_along_its_ray(case)
         x2, _ = _arm()
         _thrown_to(x2, rows, 2, 4.0)
         assert repair_ray_depth(x2, conf, ARM, ARM_LENGTHS)[1][rows, 2].all()
+
+
+def test_a_reference_that_followed_the_throw_does_not_hide_it():
+    """The live path's last output followed a joint thrown before the body's lengths were known:
+    that reference is itself off its bone, so it says nothing of where the joint belongs."""
+    x, conf = _arm(1)
+    _thrown_to(x, 0, 2, 4.0)
+    y, done = repair_ray_depth(x, conf, ARM, ARM_LENGTHS, reference=x.copy())
+    assert done[0, 2]
+    np.testing.assert_allclose(y[0, 2], POSE[2], atol=1e-9)
+    good = np.repeat(POSE[None], 1, axis=0)  # a reference where the arm is whole still decides
+    assert repair_ray_depth(x, conf, ARM, ARM_LENGTHS, reference=good)[1][0, 2]

@@ -92,9 +92,10 @@ def repair_ray_depth(
 
     ``bone_lengths`` ``(B,)`` m: the body's lengths (NaN: that bone is not judged; None:
     nothing is). ``joints`` ``(J,)`` bool: only these joints are judged (None = every one).
-    ``reference`` ``(T, J, 3)`` m: where each joint is expected (NaN: unknown), in place of
-    the interpolation between its good samples: a causal caller (the live path, one frame at
-    a time) passes its last output."""
+    ``reference`` ``(T, J, 3)`` m: where each joint is expected (NaN: unknown; a reference
+    joint whose own bone is stretched counts as unknown), in place of the interpolation
+    between its good samples: a causal caller (the live path, one frame at a time) passes
+    its last output."""
     x = np.array(positions, dtype=np.float64)
     conf = np.asarray(confidence, dtype=np.float64)
     T, J = conf.shape
@@ -127,7 +128,12 @@ def repair_ray_depth(
         own_good = seen & ~raw_stretched
         own = interpolate_linear(np.where(own_good[..., None], x, np.nan), own_good)[0]
     else:
-        own = np.asarray(reference, dtype=np.float64)
+        own = np.array(reference, dtype=np.float64)
+        # a reference that took the throw itself (the live output followed a joint thrown before
+        # the body's lengths were known) says nothing of where the joint belongs: unknown there
+        ref_bone = np.linalg.norm(own - own[:, pj], axis=2)
+        with np.errstate(invalid="ignore"):
+            own[judged[None, :] & (ref_bone - length > np.maximum(fraction * length, floor_m))] = np.nan
     # the body's median joint, which the thrown joints themselves do not move (NaN: none seen)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a frame with no joint seen
