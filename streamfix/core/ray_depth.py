@@ -36,7 +36,7 @@ import warnings
 import numpy as np
 
 from .bone_rotations import _levels as depth_levels
-from .excursion import bone_into
+from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear
 
 __all__ = ["repair_ray_depth", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
@@ -104,7 +104,7 @@ def repair_ray_depth(
     if T == 0 or not len(b) or bone_lengths is None:
         return x, done
     into = bone_into(b, J)
-    parents = np.where(into >= 0, b[np.maximum(into, 0), 0], -1).astype(np.intp)
+    parents = parents_from_bones(b, J).astype(np.intp)
     length = np.where(into >= 0, np.asarray(bone_lengths, dtype=np.float64)[np.maximum(into, 0)], np.nan)
     judged = np.isfinite(length) & (length > 0)
     if joints is not None:
@@ -114,9 +114,11 @@ def repair_ray_depth(
     seen = (conf > 0) & np.isfinite(x).all(axis=2)
     pj = np.where(parents >= 0, parents, 0)
 
-    def stretched(pos: np.ndarray) -> np.ndarray:
-        bone = np.linalg.norm(pos - pos[:, pj], axis=2)
-        return seen & seen[:, pj] & judged & (bone - length > np.maximum(fraction * length, floor_m))
+    def stretched(pos: np.ndarray, cols: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """(T, len(cols)) bool: the joints ``cols`` whose bone to their parent is stretched."""
+        p, L = pj[cols], length[cols]
+        bone = np.linalg.norm(pos[:, cols] - pos[:, p], axis=2)
+        return seen[:, cols] & seen[:, p] & judged[cols] & (bone - L > np.maximum(fraction * L, floor_m))
 
     raw_stretched = stretched(x)
     if not raw_stretched.any():  # the common case: nothing to judge
@@ -144,7 +146,7 @@ def repair_ray_depth(
         p = parents[level]
         L = length[level]
         bone = np.linalg.norm(x[:, level] - x[:, p], axis=2)
-        cand = stretched(x)[:, level] & camera[:, None] & into_ok[:, p]
+        cand = stretched(x, level) & camera[:, None] & into_ok[:, p]
         if cand.any():
             dist = np.linalg.norm(x[:, level], axis=2)
             u = x[:, level] / np.where(dist > 0, dist, 1.0)[..., None]  # unit ray through the joint
