@@ -151,17 +151,17 @@ def run_sync(frames, solver, cfg) -> dict:
 
 
 def live_latency(bodies, n_frames: int, cfg: EngineConfig) -> dict:
-    """Per body-frame cost of the live path exactly as the engine runs it (ring push +
-    gate + filter + bone projection), timed both as wall time and as this thread's CPU
+    """Per body-frame cost of the live path exactly as the engine runs it (ring push + depth
+    repair + gate + filter + bone projection, the body's median bone lengths), timed both as wall time and as this thread's CPU
     time (immune to the scheduler preempting us on a shared machine)."""
     from streamfix.streaming.live import LivePath
     from streamfix.streaming.ring import RingBuffer
 
     paths = [LivePath(KINECT_V2.n_joints, KINECT_V2.bone_array, RATE, cfg.live, camera_space=True) for _ in bodies]
     rings = [RingBuffer(cfg.window, KINECT_V2.n_joints) for _ in bodies]
-    lengths = np.full(KINECT_V2.n_bones, 0.25)
-    for p in paths:
-        p.set_bone_lengths(lengths)
+    bones = KINECT_V2.bone_array
+    for (pos, _), p in zip(bodies, paths):  # each body's own lengths, as the engine hands them over
+        p.set_bone_lengths(np.nanmedian(np.linalg.norm(pos[:, bones[:, 1]] - pos[:, bones[:, 0]], axis=2), axis=0))
     wall, cpu = [], []
     for i in range(n_frames):
         for (pos, conf), ring, path in zip(bodies, rings, paths):
