@@ -123,37 +123,66 @@ def repair_ray_depth(
     raw_stretched = stretched(x)
     if not raw_stretched.any():  # the common case: nothing to judge
         return x, done
-    # where each joint's own good samples around a run put it: a sample thrown along its ray
-    # departs from that along the ray, while a good one whose parent was thrown (or put back
-    # at the wrong one of its two roots) does not
-    if reference is None:
-        own_good = seen & ~raw_stretched
-        own = interpolate_linear(np.where(own_good[..., None], x, np.nan), own_good)[0]
-    else:
-        own = np.array(reference, dtype=np.float64)
-        # a reference that took the throw itself (the live output followed a joint thrown before
-        # the body's lengths were known) says nothing of where the joint belongs: unknown there
-        ref_bone = np.linalg.norm(own - own[:, pj], axis=2)
-        with np.errstate(invalid="ignore"):
-            own[judged[None, :] & (ref_bone - length > np.maximum(fraction * length, floor_m))] = np.nan
-    # the body's median joint, which the thrown joints themselves do not move (NaN: none seen)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a frame with no joint seen
-        centre = np.nanmedian(np.where(seen[..., None], x, np.nan), axis=1)  # (T, 3)
-    camera = ~(np.linalg.norm(centre, axis=1) < MIN_SENSOR_DISTANCE_M) & seen.any(axis=1)
+    # what follows is worked out only for the joints and frames that need it (a sensor's noise
+    # stretches a short bone now and then: most windows judge a few joints, if any)
+    own = np.full((T, J, 3), np.nan)  # where each joint is expected; filled per joint on demand
+    own_known = np.zeros(J, dtype=bool)
+
+    def expected(cols: np.ndarray) -> np.ndarray:
+        """``own[:, cols]``: where each of the joints ``cols`` is expected (see below)."""
+        need = cols[~own_known[cols]]
+        if len(need):
+            if reference is None:
+                # where each joint's own good samples around a run put it: a sample thrown along its
+                # ray departs from that along the ray, while a good one whose parent was thrown (or
+                # put back at the wrong one of its two roots) does not (linear in time, joint by joint)
+                own_good = seen[:, need] & ~raw_stretched[:, need]
+                own[:, need] = interpolate_linear(np.where(own_good[..., None], x[:, need], np.nan), own_good)[0]
+            else:
+                ref = np.asarray(reference, dtype=np.float64)
+                own[:, need] = ref[:, need]
+                # a reference that took the throw itself (the live output followed a joint thrown
+                # before the body's lengths were known) says nothing of where the joint belongs
+                ref_bone = np.linalg.norm(ref[:, need] - ref[:, pj[need]], axis=2)
+                with np.errstate(invalid="ignore"):
+                    took = judged[need][None, :] & (ref_bone - length[need] > np.maximum(fraction * length[need], floor_m))
+                own[:, need] = np.where(took[..., None], np.nan, own[:, need])
+            own_known[need] = True
+        return own[:, cols]
+
+    x_raw = x.copy()  # the medians below are of the raw frames, whatever the levels move
+    camera = np.zeros(T, dtype=bool)
+    camera_known = np.zeros(T, dtype=bool)
+
+    def in_camera_space(rows: np.ndarray) -> np.ndarray:
+        """``camera[rows]``: the frames ``rows`` (T,) bool whose seen joints' median lies at least
+        ``MIN_SENSOR_DISTANCE_M`` from the origin (the thrown joints themselves do not move a median)."""
+        need = rows & ~camera_known
+        if need.any():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a frame with no joint seen
+                centre = np.nanmedian(np.where(seen[need][..., None], x_raw[need], np.nan), axis=1)  # (n, 3)
+            camera[need] = ~(np.linalg.norm(centre, axis=1) < MIN_SENSOR_DISTANCE_M) & seen[need].any(axis=1)
+            camera_known[need] = True
+        return camera
+
     into_ok = np.ones((T, J), dtype=bool)  # each joint's own bone within proximal_fraction (roots: True)
-    for level, _ in depth_levels(parents.tobytes())[1:]:  # roots have no bone to judge
-        p = parents[level]
-        L = length[level]
-        bone = np.linalg.norm(x[:, level] - x[:, p], axis=2)
-        cand = stretched(x, level) & camera[:, None] & into_ok[:, p]
-        if cand.any():
+    for level_all, _ in depth_levels(parents.tobytes())[1:]:  # roots have no bone to judge
+        bone_all = np.linalg.norm(x[:, level_all] - x[:, parents[level_all]], axis=2)
+        cand = stretched(x, level_all) & into_ok[:, parents[level_all]]
+        rows = cand.any(axis=1)
+        if rows.any():
+            cand &= in_camera_space(rows)[:, None]
+        hit = cand.any(axis=0)
+        if hit.any():  # only this level's joints with a candidate frame are worked on
+            level, cand = level_all[hit], cand[:, hit]
+            p, L = parents[level], length[level]
             dist = np.linalg.norm(x[:, level], axis=2)
             u = x[:, level] / np.where(dist > 0, dist, 1.0)[..., None]  # unit ray through the joint
             along = (u * x[:, p]).sum(axis=2)  # s of the ray's point nearest the parent
             miss2 = (x[:, p] ** 2).sum(axis=2) - along ** 2  # squared distance of that point to the parent
             reach = L * (1.0 + ray_slack) + RAY_NOISE_M
-            off = x[:, level] - own[:, level]  # NaN: no good sample
+            off = x[:, level] - expected(level)  # NaN: no good sample
             departure = (off * u).sum(axis=2)
             sideways = np.linalg.norm(off - departure[..., None] * u, axis=2)
             departure = np.abs(departure)
@@ -162,22 +191,23 @@ def repair_ray_depth(
             # would keep the sideways part of its error)
             along_ray = ~(departure <= np.maximum(fraction * L, MIN_DEPARTURE_M)) & ~(sideways > SIDEWAYS_RATIO * departure)
             cand &= (miss2 <= reach ** 2) & (along > 0) & along_ray
-        if cand.any():
-            h = np.sqrt(np.maximum(L ** 2 - miss2, 0.0))
-            near, far = (along - h)[..., None] * u, (along + h)[..., None] * u
-            if reference is None:  # the joint's offset to its parent in the good samples around each run, in time
-                good = seen[:, level] & seen[:, p] & ~cand
-                offset = np.where(good[..., None], x[:, level] - x[:, p], np.nan)
-                guess = interpolate_linear(offset, good)[0] + x[:, p]
-            else:
-                guess = x[:, p] + (own[:, level] - own[:, p])
-            known = np.isfinite(guess).all(axis=2)
-            use_near = np.where(known, np.linalg.norm(near - guess, axis=2) <= np.linalg.norm(far - guess, axis=2),
-                                True)  # no guess: the sensor's side
-            use_near &= along - h > 0  # never behind the sensor
-            fixed = np.where(use_near[..., None], near, far)
-            x[:, level] = np.where(cand[..., None], fixed, x[:, level])
-            done[:, level] = cand
-            bone = np.where(cand, np.linalg.norm(x[:, level] - x[:, p], axis=2), bone)
-        into_ok[:, level] = ~judged[level] | (np.abs(bone - L) <= proximal_fraction * L) | ~np.isfinite(L)
+            if cand.any():
+                h = np.sqrt(np.maximum(L ** 2 - miss2, 0.0))
+                near, far = (along - h)[..., None] * u, (along + h)[..., None] * u
+                if reference is None:  # the joint's offset to its parent in the good samples around each run, in time
+                    good = seen[:, level] & seen[:, p] & ~cand
+                    offset = np.where(good[..., None], x[:, level] - x[:, p], np.nan)
+                    guess = interpolate_linear(offset, good)[0] + x[:, p]
+                else:
+                    guess = x[:, p] + (expected(level) - expected(p))
+                known = np.isfinite(guess).all(axis=2)
+                use_near = np.where(known, np.linalg.norm(near - guess, axis=2) <= np.linalg.norm(far - guess, axis=2),
+                                    True)  # no guess: the sensor's side
+                use_near &= along - h > 0  # never behind the sensor
+                fixed = np.where(use_near[..., None], near, far)
+                x[:, level] = np.where(cand[..., None], fixed, x[:, level])
+                done[:, level] = cand
+                bone_all[:, hit] = np.where(cand, np.linalg.norm(x[:, level] - x[:, p], axis=2), bone_all[:, hit])
+        L_all = length[level_all]
+        into_ok[:, level_all] = ~judged[level_all] | (np.abs(bone_all - L_all) <= proximal_fraction * L_all) | ~np.isfinite(L_all)
     return x, done
