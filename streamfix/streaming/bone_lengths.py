@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.isometry import length_mode_with_support, symmetric_lengths
+from ..core.isometry import length_mode_with_support, symmetric_lengths, thrown_twins
 from .bodies import (
     BONE_HISTORY_S,
     BONE_OWN_SUPPORT_S,
@@ -28,14 +28,6 @@ from .bodies import (
     GUESSED_SHARE_POOLED,
     Body,
 )
-
-TWIN_MAX_RATIO = 2.0
-"""A bone estimated longer than this times its left/right twin's..."""
-TWIN_MAX_EXCESS_M = 0.25
-"""...and by more than this (m) takes the twin's length (a sensor's failure, not the body's).
-Loose on purpose: Kinect v1's collar bones (UI-PRMD) differ from their twins by up to 2x and
-14 cm over a stream's first 2 s, and taking the shorter one there cost 0.3 mm of debiased error
-against Vicon; a joint read at the wall's depth makes its bone decimetres to metres longer."""
 
 __all__ = ["LengthSources", "length_sources", "record_raw_bones", "raw_history_lengths", "sample_clean_bones"]
 
@@ -102,10 +94,8 @@ def raw_history_lengths(
     # a bone twice as long as its twin, and a quarter metre longer, is no person's: a joint the
     # sensor put at the wall's depth behind it for most of the memory (core/ray_depth.py) left
     # the mode there, which the depth repair and the output's projection would then keep
-    twin = est[mirror_bones]
-    with np.errstate(invalid="ignore"):
-        thrown = (est > TWIN_MAX_RATIO * twin) & (est - twin > TWIN_MAX_EXCESS_M)
-    est, support = np.where(thrown, twin, est), np.where(thrown, support[mirror_bones], support)
+    thrown = thrown_twins(est, mirror_bones)
+    est, support = np.where(thrown, est[mirror_bones], est), np.where(thrown, support[mirror_bones], support)
     peaked = np.where(thrown, peaked[mirror_bones], peaked)  # the twin's peak stands for it too
     if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all() and peaked.all():
         return est
