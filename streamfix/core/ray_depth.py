@@ -22,6 +22,11 @@ sensor's side of the two (the wall the depth came from is behind the limb), unle
 lies behind the sensor. Parents first: an elbow put back moves the point its wrist is judged
 from. A joint two bones end at (MediaPipe's graph) is judged by the later-listed one.
 
+Lengths: the body's (the engine's estimate); before it has one (a stream's first second, when
+a person walking into view is most often half on the silhouette's edge) the median of the raw
+frames so far (:func:`provisional_lengths`), with only gross throws judged
+(``PROVISIONAL_FLOOR_M``).
+
 The coordinates must be a sensor's camera space (the sensor at the origin): the caller
 says so by the layout (depth sensors and pose estimators, not optical markers or BVH), and a
 frame whose seen joints' median is nearer the origin than ``MIN_SENSOR_DISTANCE_M`` (a take re-centred on
@@ -31,15 +36,15 @@ Arrays: positions ``(T, J, 3)`` metres, confidence ``(T, J)``, bones ``(B, 2)`` 
 """
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from .bone_rotations import _levels as depth_levels
 from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear
+from .isometry import thrown_twins
+from .robust_stats import nanmedian
 
-__all__ = ["repair_ray_depth", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
+__all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
            "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M"]
 
 FRACTION = 0.5
@@ -72,6 +77,33 @@ bone does not say which end is wrong; a parent off its length is judged first, o
 
 MIN_SENSOR_DISTANCE_M = 0.5
 """A frame whose joints' median lies nearer the origin than this is not in a sensor's camera space."""
+
+PROVISIONAL_MIN_FRAMES = 3
+"""Frames a bone must be seen in before :func:`provisional_lengths` gives it a length."""
+
+PROVISIONAL_FLOOR_M = 0.25
+"""``floor_m`` while the lengths are provisional: a median of a stream's first frames is
+rough, and a live path's last output is not settled yet, so only a gross throw (the wall
+is metres behind) is judged; at ``FLOOR_M`` a Kinect v2's hand 4 cm off in its first half
+second (KERAAL, against Vicon) was pushed 16 cm back along its ray."""
+
+
+def provisional_lengths(lengths: np.ndarray, mirror: np.ndarray | None) -> np.ndarray:
+    """``(B,)`` bone lengths (m) to judge throws by before a body's own lengths are known.
+
+    Why: the engine trusts a body's lengths only after about a second of well-supported
+    samples, and until then nothing is judged, while a person walking into view is where a
+    depth sensor reads the wall behind a limb most. ``lengths`` ``(N, B)``: each frame's raw
+    bone lengths so far (NaN where an end is not seen); each bone takes its median over them
+    (a throw that lasts less than half of those frames does not move it), NaN with fewer than
+    :data:`PROVISIONAL_MIN_FRAMES`; one that is still twice its left/right twin's and a quarter
+    metre longer (a throw from the first frame on: :func:`~streamfix.core.isometry.thrown_twins`)
+    takes the twin's. ``mirror`` ``(B,)``: each bone's counterpart (None: no twins)."""
+    n = np.asarray(lengths, dtype=np.float64)
+    est = np.where(np.isfinite(n).sum(axis=0) >= PROVISIONAL_MIN_FRAMES, nanmedian(n, axis=0), np.nan)
+    if mirror is not None and len(est):
+        est = np.where(thrown_twins(est, mirror), est[np.asarray(mirror, dtype=np.intp)], est)
+    return est
 
 
 def repair_ray_depth(
@@ -159,9 +191,7 @@ def repair_ray_depth(
         ``MIN_SENSOR_DISTANCE_M`` from the origin (the thrown joints themselves do not move a median)."""
         need = rows & ~camera_known
         if need.any():
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # a frame with no joint seen
-                centre = np.nanmedian(np.where(seen[need][..., None], x_raw[need], np.nan), axis=1)  # (n, 3)
+            centre = nanmedian(np.where(seen[need][..., None], x_raw[need], np.nan), axis=1)  # (n, 3); NaN: none seen
             camera[need] = ~(np.linalg.norm(centre, axis=1) < MIN_SENSOR_DISTANCE_M) & seen[need].any(axis=1)
             camera_known[need] = True
         return camera

@@ -169,6 +169,7 @@ where it was recovered) to solvers whose ``wants_history`` attribute is True.
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any, Callable
 
 import numpy as np
@@ -176,6 +177,8 @@ import numpy as np
 from ..core.excursion import (EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion,
                               parents_from_bones, travel_speed)
 from ..core.interpolate import missing_run_lengths
+from ..core.isometry import bone_lengths_per_frame
+from ..limbs import mirror_bones
 from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
 from .solver_api import RELEASED_KEY, WindowOutput
@@ -310,6 +313,12 @@ def _with_recovered(res: Any, mask: np.ndarray, bridged: dict | None = None) -> 
         np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
         bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), counts,
     )
+
+
+@lru_cache(maxsize=64)
+def _mirror_bones(skeleton: Skeleton) -> np.ndarray:
+    """:func:`streamfix.limbs.mirror_bones`, cached per skeleton (read every window)."""
+    return mirror_bones(skeleton)
 
 
 class BridgingWindowSolver:
@@ -638,9 +647,18 @@ class BridgingWindowSolver:
             # joints the sensor read the background's (or an occluder's) depth for, thrown along
             # their camera ray (core/ray_depth.py): moved back along it to their bone's length, a
             # low-confidence observation the window pipeline smooths with the rest
-            from ..core.ray_depth import repair_ray_depth
+            from ..core.ray_depth import FLOOR_M, PROVISIONAL_FLOOR_M, provisional_lengths, repair_ray_depth
 
-            x, along_ray = repair_ray_depth(x, conf, bones, bone_lengths)
+            lengths, floor_m = bone_lengths, FLOOR_M
+            if lengths is None and len(bones):
+                # the body's lengths are not known yet (its first second): the window's own
+                # samples say enough to tell a limb thrown metres back (a person walking into view)
+                seen = conf > 0
+                per_frame = np.where(seen[:, bones[:, 0]] & seen[:, bones[:, 1]], bone_lengths_per_frame(x, bones), np.nan)
+                mirror = _mirror_bones(skeleton)
+                lengths = provisional_lengths(per_frame, mirror if len(mirror) == len(bones) else None)
+                floor_m = PROVISIONAL_FLOOR_M
+            x, along_ray = repair_ray_depth(x, conf, bones, lengths, floor_m=floor_m)
             if along_ray.any():
                 conf = np.where(along_ray, self.fill_confidence, conf)
                 replaced = along_ray if replaced is None else (replaced | along_ray)

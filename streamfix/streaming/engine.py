@@ -645,7 +645,8 @@ class StreamEngine:
                     self.counters["bodies_reidentified"] += 1
                 body = Body(bid, g, self.cfg, self.skeleton, self._backlog, prior)
                 body.live_path = LivePath(self.n_joints, self.bones, self.cfg.rate_hz, self.cfg.live,
-                                          camera_space=self.skeleton.name in CAMERA_SPACE_SKELETONS)
+                                          camera_space=self.skeleton.name in CAMERA_SPACE_SKELETONS,
+                                          mirror_bones=self._mirror_bones)
                 lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
                 body.live_path.set_bone_lengths(lengths)
                 ordinal = self.counters["bodies_seen"] if self._body_ordinal is None else self._body_ordinal()

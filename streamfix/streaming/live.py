@@ -6,7 +6,9 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
    raw sample whose bone is stretched because the sensor read the depth behind it (far
    along its camera ray from the last output) is moved back along the ray to its bone's
    length (:func:`streamfix.core.ray_depth.repair_ray_depth`, with the last output as the
-   reference), flagged recovered; a few array operations when nothing is stretched.
+   reference), flagged recovered; a few array operations when nothing is stretched. Until the
+   engine hands over the body's lengths, the path judges by the median of its raw frames'
+   own (:func:`streamfix.core.ray_depth.provisional_lengths`), gross throws only.
 1. **Outlier gate** (per coordinate), default ``gate='theil_sen'``: the reference is
    the Theil-Sen line through the last ``gate_frames`` (7) *raw* samples of the
    coordinate (slope = median of pairwise slopes, breakdown point 29 %), evaluated at
@@ -66,6 +68,9 @@ share of the gated value's (see :meth:`LivePath._release_rigid`)."""
 RELEASE_FLOOR_M = 0.003
 """... and the gated value's bone-length error exceeds this (m): below it the line breaks
 nothing and its verdict stands."""
+PROVISIONAL_MEMORY_S = 2.0
+"""Seconds of raw bone lengths the depth repair's provisional lengths are the median of,
+while the engine has not handed over the body's (its first second or so)."""
 
 
 @dataclass(frozen=True)
@@ -213,7 +218,7 @@ class LivePath:
     """Causal per-body estimator: ``step(x, valid, t) -> (positions, recovered)``."""
 
     def __init__(self, n_joints: int, bones: np.ndarray, rate_hz: float, config: LiveConfig = LiveConfig(),
-                 camera_space: bool = False) -> None:
+                 camera_space: bool = False, mirror_bones: np.ndarray | None = None) -> None:
         self.cfg = config
         self._repair_depth = bool(config.repair_depth and camera_space)
         self.n_joints = n_joints
@@ -234,7 +239,12 @@ class LivePath:
         self._ray_child = np.flatnonzero(into >= 0)
         self._ray_bone = into[self._ray_child]
         self._ray_parent = self.bones[self._ray_bone, 0] if len(self.bones) else self._ray_child
-        self._bone_len = None  # (B,) m once set_bone_lengths gives them (the depth repair judges nothing before)
+        self._bone_len = None  # (B,) m once set_bone_lengths gives them
+        # until then the depth repair judges by the raw frames' own lengths (core.ray_depth.provisional_lengths)
+        self._mirror_bones = (None if mirror_bones is None or len(mirror_bones) != len(self.bones)
+                              else np.asarray(mirror_bones, dtype=np.intp))
+        self._raw_lengths = np.full((max(int(round(PROVISIONAL_MEMORY_S * self.rate_hz)), 1), len(self.bones)), np.nan)
+        self._raw_lengths_n = 0
         self._release_order = _release_order(self.levels)
         self._release_flat = np.ascontiguousarray(np.concatenate(self._release_order) if self._release_order
                                                   else np.zeros(0, dtype=np.intp), dtype=np.intp)
@@ -327,20 +337,37 @@ class LivePath:
         Returns ``(positions (J, 3), recovered (J,) bool)``; ``recovered`` marks
         joints that were missing or whose sample the gate replaced (or the depth repair moved).
         """
-        if not self._repair_depth or self._bone_len is None:
+        if not self._repair_depth:
             return self._step(x, valid, t)
+        lengths, floor_m = self._bone_len, ray_depth.FLOOR_M
+        if lengths is None:  # the body's lengths are not known yet: gross throws only
+            lengths, floor_m = self._provisional_lengths(x, valid), ray_depth.PROVISIONAL_FLOOR_M
+            if lengths is None:
+                return self._step(x, valid, t)
         # the repair's own first test, on the tree's bones at once: nothing stretched, nothing to judge
-        length = self._bone_len[self._ray_bone]
+        length = lengths[self._ray_bone]
         bone = np.linalg.norm(x[self._ray_child] - x[self._ray_parent], axis=1)
-        if not (bone - length > np.maximum(ray_depth.FRACTION * length, ray_depth.FLOOR_M)).any():
+        if not (bone - length > np.maximum(ray_depth.FRACTION * length, floor_m)).any():
             return self._step(x, valid, t)
         # judged against the body's lengths and the last output (where each joint was expected)
-        fixed, moved = ray_depth.repair_ray_depth(x[None], valid[None].astype(np.float64), self.bones, self._bone_len,
-                                        reference=self._last[None])
+        fixed, moved = ray_depth.repair_ray_depth(x[None], valid[None].astype(np.float64), self.bones, lengths,
+                                                  floor_m=floor_m, reference=self._last[None])
         if not moved.any():
             return self._step(x, valid, t)
         y, rec = self._step(fixed[0], valid, t)
         return y, rec | moved[0]
+
+    def _provisional_lengths(self, x: np.ndarray, valid: np.ndarray) -> np.ndarray | None:
+        """File this raw frame's bone lengths and return the provisional lengths of the frames
+        filed so far (:func:`streamfix.core.ray_depth.provisional_lengths`; None with no bones):
+        the depth repair's lengths before the engine knows the body's."""
+        if not len(self.bones):
+            return None
+        a, b = self.bones[:, 0], self.bones[:, 1]
+        row = np.where(valid[a] & valid[b], np.linalg.norm(x[b] - x[a], axis=1), np.nan)
+        self._raw_lengths[self._raw_lengths_n % len(self._raw_lengths)] = row
+        self._raw_lengths_n += 1
+        return ray_depth.provisional_lengths(self._raw_lengths[:self._raw_lengths_n], self._mirror_bones)
 
     def _step(self, x: np.ndarray, valid: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`step` after the depth repair."""
