@@ -71,6 +71,8 @@ nothing and its verdict stands."""
 PROVISIONAL_MEMORY_S = 2.0
 """Seconds of raw bone lengths the depth repair's provisional lengths are the median of,
 while the engine has not handed over the body's (its first second or so)."""
+PROVISIONAL_EVERY = 5
+"""...taken again every this many frames (frames between reuse the last)."""
 
 
 @dataclass(frozen=True)
@@ -245,6 +247,7 @@ class LivePath:
                               else np.asarray(mirror_bones, dtype=np.intp))
         self._raw_lengths = np.full((max(int(round(PROVISIONAL_MEMORY_S * self.rate_hz)), 1), len(self.bones)), np.nan)
         self._raw_lengths_n = 0
+        self._provisional = None  # the last provisional_lengths taken
         self._release_order = _release_order(self.levels)
         self._release_flat = np.ascontiguousarray(np.concatenate(self._release_order) if self._release_order
                                                   else np.zeros(0, dtype=np.intp), dtype=np.intp)
@@ -367,7 +370,12 @@ class LivePath:
         row = np.where(valid[a] & valid[b], np.linalg.norm(x[b] - x[a], axis=1), np.nan)
         self._raw_lengths[self._raw_lengths_n % len(self._raw_lengths)] = row
         self._raw_lengths_n += 1
-        return ray_depth.provisional_lengths(self._raw_lengths[:self._raw_lengths_n], self._mirror_bones)
+        n = self._raw_lengths_n
+        # the median moves slowly: taken again every PROVISIONAL_EVERY frames once a few are in
+        # (each take costs about 0.2 ms, a live frame otherwise 0.1)
+        if self._provisional is None or n <= 2 * ray_depth.PROVISIONAL_MIN_FRAMES or n % PROVISIONAL_EVERY == 0:
+            self._provisional = ray_depth.provisional_lengths(self._raw_lengths[:n], self._mirror_bones)
+        return self._provisional
 
     def _step(self, x: np.ndarray, valid: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`step` after the depth repair."""
