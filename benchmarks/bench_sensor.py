@@ -18,7 +18,9 @@ each method's seam is measured at its own schedule's window hand-overs:
 * collateral damage (error on uncorrupted joint-frames) no larger than
   ``median_savgol``'s on every kind that has such frames;
 * on swapped joint-frames at most 0.3x the input's error; on frozen/drifting limbs
-  (``freeze``, flagged inferred) at most 0.5x;
+  (``freeze``, flagged inferred) at most 0.5x; on joints thrown along their camera ray
+  (``depth``, its parameters assumed: ``docs/SENSOR_ERRORS.md``) at most 0.1x, throws in a
+  stream's first second included;
 * ``flagged`` (right limbs flagged inferred: a hazard, not an error, so no "below the best
   baseline" bar; the input is exact there): error on the flagged joint-frames no larger
   than ``median_savgol``'s there, i.e. a cleaner that questions inferred limbs may not
@@ -64,6 +66,7 @@ from streamfix.evaluation.sensor import SCORED_KINDS, run_sensor, summarise  # n
 
 SWAP_MAX_RATIO = 0.3
 FREEZE_MAX_RATIO = 0.5
+DEPTH_MAX_RATIO = 0.1
 SEAM_MAX_RATIO = 1.1
 NOT_BASELINES = ("input", *ENGINE_SCHEDULES)  # the engine: what `clean` writes, serve's clean and live topics
 HAZARDS = ("flagged",)  # the input is right there: scored for damage, not against the baselines
@@ -115,7 +118,7 @@ def check_bars(summary: dict, seam_ratio: float | None, method: str = "streamfix
             bars.append({"bar": f"{tag}collateral damage <= median_savgol's", "kind": kind, "value": sf["err_clean_m"],
                          "target": ms["err_clean_m"], "ok": sf["err_clean_m"] <= ms["err_clean_m"]})
         inp = per.get("input")
-        for k, ratio in (("swap", SWAP_MAX_RATIO), ("freeze", FREEZE_MAX_RATIO)):
+        for k, ratio in (("swap", SWAP_MAX_RATIO), ("freeze", FREEZE_MAX_RATIO), ("depth", DEPTH_MAX_RATIO)):
             if kind == k and inp and inp["err_corrupted_m"] and sf["err_corrupted_m"] is not None:
                 target = ratio * inp["err_corrupted_m"]
                 bars.append({"bar": f"{tag}corrupted joint-frames <= {ratio}x input", "kind": kind,
