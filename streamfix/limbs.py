@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -107,11 +108,15 @@ def limb_groups(skeleton: Skeleton) -> list[tuple[np.ndarray, np.ndarray]]:
     return groups
 
 
+@lru_cache(maxsize=64)
 def mirror_bones(skeleton: Skeleton) -> np.ndarray:
-    """``(B,)`` index of each bone's left/right counterpart (itself for midline bones)."""
+    """``(B,)`` index of each bone's left/right counterpart (itself for midline bones); cached
+    per skeleton (the engine's window stages read it every window), read-only."""
     m = mirror_index(skeleton)
     index = {(a, b): k for k, (a, b) in enumerate(skeleton.bones)}
-    return np.array([index.get((int(m[a]), int(m[b])), k) for k, (a, b) in enumerate(skeleton.bones)], dtype=np.intp)
+    out = np.array([index.get((int(m[a]), int(m[b])), k) for k, (a, b) in enumerate(skeleton.bones)], dtype=np.intp)
+    out.setflags(write=False)
+    return out
 
 
 def limb_layout(skeleton: Skeleton) -> LimbLayout:

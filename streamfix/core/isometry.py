@@ -29,8 +29,10 @@ __all__ = [
     "estimate_bone_lengths",
     "symmetric_lengths",
     "thrown_twins",
+    "seen_bone_lengths",
     "TWIN_MAX_RATIO",
     "TWIN_MAX_EXCESS_M",
+    "TWIN_MIN_M",
     "isometry_residual",
     "isometry_jacobian",
     "incidence_matrix",
@@ -179,14 +181,32 @@ a stream's first 2 s, and taking the shorter one there cost 0.3 mm of debiased e
 Vicon; a joint read at the wall's depth makes its bone decimetres to metres longer."""
 
 
+TWIN_MIN_M = 0.03
+"""...unless the twin itself is shorter than this (m): a collapsed twin (an inferred joint put on
+its parent) says nothing of the bone's length."""
+
+
 def thrown_twins(lengths: np.ndarray, mirror: np.ndarray) -> np.ndarray:
     """``(B,)`` bool: bones whose estimate ``lengths`` ``(B,)`` m exceeds their left/right twin's
     (``mirror`` ``(B,)``, each bone's counterpart) by ``TWIN_MAX_RATIO`` times and
-    ``TWIN_MAX_EXCESS_M``: an estimate a sensor's thrown joint made (the caller takes the twin's)."""
+    ``TWIN_MAX_EXCESS_M``, the twin being at least ``TWIN_MIN_M``: an estimate a sensor's thrown
+    joint made (the caller takes the twin's). ValueError when ``mirror`` does not match."""
     est = np.asarray(lengths, dtype=np.float64)
-    twin = est[np.asarray(mirror, dtype=np.intp)]
+    m = np.asarray(mirror, dtype=np.intp)
+    if est.ndim != 1 or m.shape != est.shape:
+        raise ValueError(f"lengths and mirror must both be (B,), got {est.shape} and {m.shape}")
+    twin = est[m]
     with np.errstate(invalid="ignore"):
-        return (est > TWIN_MAX_RATIO * twin) & (est - twin > TWIN_MAX_EXCESS_M)
+        return (est > TWIN_MAX_RATIO * twin) & (est - twin > TWIN_MAX_EXCESS_M) & (twin >= TWIN_MIN_M)
+
+
+def seen_bone_lengths(positions: np.ndarray, seen: np.ndarray, bones: np.ndarray) -> np.ndarray:
+    """``(..., B)`` bone lengths (m) of ``positions`` ``(..., J, 3)`` where both ends are ``seen``
+    ``(..., J)``, NaN elsewhere (one frame or many)."""
+    b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+    s = np.asarray(seen, dtype=bool)
+    both = s[..., b[:, 0]] & s[..., b[:, 1]]
+    return np.where(both, bone_lengths_per_frame(positions, b), np.nan)
 
 
 def symmetric_lengths(

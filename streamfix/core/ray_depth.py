@@ -24,7 +24,7 @@ from. A joint two bones end at (MediaPipe's graph) is judged by the later-listed
 
 Lengths: the body's (the engine's estimate); before it has one (a stream's first second, when
 a person walking into view is most often half on the silhouette's edge) the median of the raw
-frames so far (:func:`provisional_lengths`), with only gross throws judged
+frames at hand (:func:`provisional_lengths`), with only gross throws judged
 (``PROVISIONAL_FLOOR_M``).
 
 The coordinates must be a sensor's camera space (the sensor at the origin): the caller
@@ -93,13 +93,16 @@ def provisional_lengths(lengths: np.ndarray, mirror: np.ndarray | None) -> np.nd
 
     Why: the engine trusts a body's lengths only after about a second of well-supported
     samples, and until then nothing is judged, while a person walking into view is where a
-    depth sensor reads the wall behind a limb most. ``lengths`` ``(N, B)``: each frame's raw
-    bone lengths so far (NaN where an end is not seen); each bone takes its median over them
+    depth sensor reads the wall behind a limb most. ``lengths`` ``(N, B)``: raw bone lengths of
+    the frames at hand (a window's, or the live path's memory of the stream so far; NaN where an
+    end is not seen, :func:`~streamfix.core.isometry.seen_bone_lengths`); each bone takes its median over them
     (a throw that lasts less than half of those frames does not move it), NaN with fewer than
     :data:`PROVISIONAL_MIN_FRAMES`; one that is still twice its left/right twin's and a quarter
     metre longer (a throw from the first frame on: :func:`~streamfix.core.isometry.thrown_twins`)
     takes the twin's. ``mirror`` ``(B,)``: each bone's counterpart (None: no twins)."""
     n = np.asarray(lengths, dtype=np.float64)
+    if n.ndim != 2:
+        raise ValueError(f"lengths must be (frames, bones), got {n.shape}")
     est = np.where(np.isfinite(n).sum(axis=0) >= PROVISIONAL_MIN_FRAMES, nanmedian(n, axis=0), np.nan)
     if mirror is not None and len(est):
         est = np.where(thrown_twins(est, mirror), est[np.asarray(mirror, dtype=np.intp)], est)
@@ -158,6 +161,7 @@ def repair_ray_depth(
     # what follows is worked out only for the joints and frames that need it (a sensor's noise
     # stretches a short bone now and then: most windows judge a few joints, if any)
     own = np.full((T, J, 3), np.nan)  # where each joint is expected; filled per joint on demand
+    ref = None if reference is None else np.asarray(reference, dtype=np.float64)
     own_known = np.zeros(J, dtype=bool)
 
     def expected(cols: np.ndarray) -> np.ndarray:
@@ -171,7 +175,6 @@ def repair_ray_depth(
                 own_good = seen[:, need] & ~raw_stretched[:, need]
                 own[:, need] = interpolate_linear(np.where(own_good[..., None], x[:, need], np.nan), own_good)[0]
             else:
-                ref = np.asarray(reference, dtype=np.float64)
                 own[:, need] = ref[:, need]
                 # a reference that took the throw itself (the live output followed a joint thrown
                 # before the body's lengths were known) says nothing of where the joint belongs
@@ -182,13 +185,14 @@ def repair_ray_depth(
             own_known[need] = True
         return own[:, cols]
 
-    x_raw = x.copy()  # the medians below are of the raw frames, whatever the levels move
+    x_raw = np.asarray(positions)  # the medians below are of the raw frames, whatever the levels move
     camera = np.zeros(T, dtype=bool)
     camera_known = np.zeros(T, dtype=bool)
 
     def in_camera_space(rows: np.ndarray) -> np.ndarray:
-        """``camera[rows]``: the frames ``rows`` (T,) bool whose seen joints' median lies at least
-        ``MIN_SENSOR_DISTANCE_M`` from the origin (the thrown joints themselves do not move a median)."""
+        """The ``(T,)`` mask of frames whose seen joints' median lies at least ``MIN_SENSOR_DISTANCE_M``
+        from the origin (the thrown joints themselves do not move a median), worked out for the
+        frames ``rows`` ``(T,)`` bool and those asked for before (False at the others)."""
         need = rows & ~camera_known
         if need.any():
             centre = nanmedian(np.where(seen[need][..., None], x_raw[need], np.nan), axis=1)  # (n, 3); NaN: none seen

@@ -109,7 +109,8 @@ class LengthSources:
     ``raw_bones`` / ``raw_bones_seen``: the body's raw-length memory (None: no bones, or
     fixed lengths); ``fallback``: the lengths to use when the raw estimate is not trusted
     (the clean-output median once ``BONE_HISTORY_S`` of it exist, else a re-identified
-    body's remembered lengths, else None: the window solver estimates its own).
+    body's remembered lengths, else None: the window solver estimates its own, and the
+    depth-repair stage judges by the window's provisional lengths, ``core.ray_depth``).
     """
 
     raw_bones: np.ndarray | None

@@ -169,7 +169,6 @@ where it was recovered) to solvers whose ``wants_history`` attribute is True.
 """
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import Any, Callable
 
 import numpy as np
@@ -177,7 +176,7 @@ import numpy as np
 from ..core.excursion import (EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_reference, limit_excursion,
                               parents_from_bones, travel_speed)
 from ..core.interpolate import missing_run_lengths
-from ..core.isometry import bone_lengths_per_frame
+from ..core.isometry import seen_bone_lengths
 from ..limbs import mirror_bones
 from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
@@ -313,12 +312,6 @@ def _with_recovered(res: Any, mask: np.ndarray, bridged: dict | None = None) -> 
         np.asarray(res.positions), rec, getattr(res, "state", None), int(getattr(res, "iterations", 0) or 0),
         bool(getattr(res, "converged", True)), dict(getattr(res, "info", {}) or {}), counts,
     )
-
-
-@lru_cache(maxsize=64)
-def _mirror_bones(skeleton: Skeleton) -> np.ndarray:
-    """:func:`streamfix.limbs.mirror_bones`, cached per skeleton (read every window)."""
-    return mirror_bones(skeleton)
 
 
 class BridgingWindowSolver:
@@ -650,13 +643,12 @@ class BridgingWindowSolver:
             from ..core.ray_depth import FLOOR_M, PROVISIONAL_FLOOR_M, provisional_lengths, repair_ray_depth
 
             lengths, floor_m = bone_lengths, FLOOR_M
-            if lengths is None and len(bones):
+            b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
+            if lengths is None and len(b):
                 # the body's lengths are not known yet (its first second): the window's own
                 # samples say enough to tell a limb thrown metres back (a person walking into view)
-                seen = conf > 0
-                per_frame = np.where(seen[:, bones[:, 0]] & seen[:, bones[:, 1]], bone_lengths_per_frame(x, bones), np.nan)
-                mirror = _mirror_bones(skeleton)
-                lengths = provisional_lengths(per_frame, mirror if len(mirror) == len(bones) else None)
+                twins = mirror_bones(skeleton) if np.array_equal(b, skeleton.bone_array) else None
+                lengths = provisional_lengths(seen_bone_lengths(x, conf > 0, b), twins)
                 floor_m = PROVISIONAL_FLOOR_M
             x, along_ray = repair_ray_depth(x, conf, bones, lengths, floor_m=floor_m)
             if along_ray.any():

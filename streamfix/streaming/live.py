@@ -8,7 +8,7 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
    length (:func:`streamfix.core.ray_depth.repair_ray_depth`, with the last output as the
    reference), flagged recovered; a few array operations when nothing is stretched. Until the
    engine hands over the body's lengths, the path judges by the median of its raw frames'
-   own (:func:`streamfix.core.ray_depth.provisional_lengths`), gross throws only.
+   bone lengths (:func:`streamfix.core.ray_depth.provisional_lengths`), gross throws only.
 1. **Outlier gate** (per coordinate), default ``gate='theil_sen'``: the reference is
    the Theil-Sen line through the last ``gate_frames`` (7) *raw* samples of the
    coordinate (slope = median of pairwise slopes, breakdown point 29 %), evaluated at
@@ -58,6 +58,7 @@ import numpy as np
 
 from ..core import kernels, ray_depth
 from ..core.excursion import bone_into
+from ..core.isometry import seen_bone_lengths
 from ..core.filters import HoltFilter as _HOLT
 
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
@@ -217,7 +218,11 @@ def _make_filter(cfg: LiveConfig, rate_hz: float):
 
 
 class LivePath:
-    """Causal per-body estimator: ``step(x, valid, t) -> (positions, recovered)``."""
+    """Causal per-body estimator: ``step(x, valid, t) -> (positions, recovered)``.
+
+    ``camera_space``: the stream is in a sensor's camera space (the depth repair runs);
+    ``mirror_bones`` ``(B,)``: each bone's left/right counterpart (:func:`streamfix.limbs.mirror_bones`),
+    for the depth repair's provisional lengths before :meth:`set_bone_lengths` (None: no twins)."""
 
     def __init__(self, n_joints: int, bones: np.ndarray, rate_hz: float, config: LiveConfig = LiveConfig(),
                  camera_space: bool = False, mirror_bones: np.ndarray | None = None) -> None:
@@ -245,7 +250,8 @@ class LivePath:
         # until then the depth repair judges by the raw frames' own lengths (core.ray_depth.provisional_lengths)
         self._mirror_bones = (None if mirror_bones is None or len(mirror_bones) != len(self.bones)
                               else np.asarray(mirror_bones, dtype=np.intp))
-        self._raw_lengths = np.full((max(int(round(PROVISIONAL_MEMORY_S * self.rate_hz)), 1), len(self.bones)), np.nan)
+        memory = max(int(round(PROVISIONAL_MEMORY_S * self.rate_hz)), ray_depth.PROVISIONAL_MIN_FRAMES)
+        self._raw_lengths = np.full((memory, len(self.bones)), np.nan)
         self._raw_lengths_n = 0
         self._provisional = None  # the last provisional_lengths taken
         self._release_order = _release_order(self.levels)
@@ -366,9 +372,7 @@ class LivePath:
         the depth repair's lengths before the engine knows the body's."""
         if not len(self.bones):
             return None
-        a, b = self.bones[:, 0], self.bones[:, 1]
-        row = np.where(valid[a] & valid[b], np.linalg.norm(x[b] - x[a], axis=1), np.nan)
-        self._raw_lengths[self._raw_lengths_n % len(self._raw_lengths)] = row
+        self._raw_lengths[self._raw_lengths_n % len(self._raw_lengths)] = seen_bone_lengths(x, valid, self.bones)
         self._raw_lengths_n += 1
         n = self._raw_lengths_n
         # the median moves slowly: taken again every PROVISIONAL_EVERY frames once a few are in
