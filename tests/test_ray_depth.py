@@ -182,6 +182,22 @@ def test_provisional_lengths_are_medians_with_a_thrown_bone_taking_its_twins():
         provisional_lengths(lengths[0], mirror)
 
 
+def test_a_live_path_without_lengths_keeps_judging_once_its_memory_wraps(thrown):
+    """The live path's provisional lengths come from a ring of its last 2 s of raw frames: a
+    throw seconds into a stream whose lengths never arrived (frames 100-190, the ring wrapped
+    at 60) is still found, from the newest frames' medians."""
+    from streamfix.limbs import mirror_bones
+    from streamfix.streaming.live import LivePath
+
+    truth, x, conf, mask = thrown
+    path = LivePath(KINECT_V2.n_joints, BONES, 30.0, camera_space=True, mirror_bones=mirror_bones(KINECT_V2))
+    valid = conf > 0
+    out = np.stack([path.step(x[i], valid[i], i / 30.0)[0] for i in range(len(x))])
+    err, err_in = np.linalg.norm(out - truth, axis=2), np.linalg.norm(x - truth, axis=2)
+    assert err_in[mask].mean() > 1.0
+    assert err[mask].mean() < 0.15, err[mask].mean()
+
+
 @pytest.mark.parametrize("topic", ["clean", "live"])
 def test_real_kinect_v2_takes_have_nothing_judged_thrown_by_provisional_lengths(shared_data, keraal, monkeypatch, topic):
     """Judged by a stream's first frames, only a gross throw counts: at the usual 8 cm floor a
