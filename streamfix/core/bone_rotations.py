@@ -51,6 +51,7 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "parent_array",
     "topological_order",
+    "depth_levels",
     "subtree_mask",
     "aim_targets",
     "solve_local_rotations",
@@ -144,8 +145,9 @@ def _twists(rest: np.ndarray, primary_rest: np.ndarray) -> bool:
 
 
 @lru_cache(maxsize=64)
-def _levels(parents_bytes: bytes) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``[(nodes, their parents), ...]`` by tree depth, root first; ``n`` stands for "no parent"."""
+def depth_levels(parents_bytes: bytes) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``[(nodes, their parents), ...]`` by tree depth, root first; ``n`` stands for "no parent".
+    ``parents_bytes``: a ``(J,)`` intp parent array's ``tobytes()`` (the key it is cached by)."""
     parents = np.frombuffer(parents_bytes, dtype=np.intp)
     n = len(parents)
     depth = np.zeros(n, dtype=np.intp)
@@ -170,7 +172,7 @@ def _plan(parents_bytes: bytes, offsets_bytes: bytes, n: int, primary: tuple) ->
     first = dict(primary)
     targets = aim_targets(parents, offsets)
     levels = []
-    for nodes, parent in _levels(parents_bytes):
+    for nodes, parent in depth_levels(parents_bytes):
         aimed, aim, aim_rest, sec, sec_rest, sec_owner = [], [], [], [], [], []
         for i, j in enumerate(nodes):
             tj = sorted(targets[j], key=lambda t: t[0] != first[j]) if j in first else targets[j]
@@ -310,7 +312,7 @@ def global_rotations(local_quaternions: np.ndarray, parents: np.ndarray) -> np.n
     T, N = L.shape[:2]
     G = np.empty((T, N + 1, 3, 3))
     G[:, N] = np.eye(3)
-    for nodes, parent in _levels(np.asarray(parents, dtype=np.intp).tobytes()):
+    for nodes, parent in depth_levels(np.asarray(parents, dtype=np.intp).tobytes()):
         G[:, nodes] = G[:, parent] @ L[:, nodes]
     return G[:, :N]
 
@@ -333,7 +335,7 @@ def forward_kinematics(
     off = np.broadcast_to(np.asarray(offsets, dtype=np.float64), (T, N, 3)) if local_offsets is None else local_offsets
     X = np.zeros((T, N + 1, 3))  # slot N: the root's "parent", at the origin with the identity
     G = np.concatenate([G, np.broadcast_to(np.eye(3), (T, 1, 3, 3))], axis=1)
-    for nodes, parent in _levels(parents.tobytes()):
+    for nodes, parent in depth_levels(parents.tobytes()):
         if (parent == N).any():
             X[:, nodes[parent == N]] = np.asarray(root_positions, dtype=np.float64)[:, None]
         child = parent < N

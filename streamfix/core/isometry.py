@@ -179,8 +179,6 @@ TWIN_MAX_EXCESS_M = 0.25
 purpose: Kinect v1's collar bones (UI-PRMD) differ from their twins by up to 2x and 14 cm over
 a stream's first 2 s, and taking the shorter one there cost 0.3 mm of debiased error against
 Vicon; a joint read at the wall's depth makes its bone decimetres to metres longer."""
-
-
 TWIN_MIN_M = 0.03
 """...unless the twin itself is shorter than this (m): a collapsed twin (an inferred joint put on
 its parent) says nothing of the bone's length."""

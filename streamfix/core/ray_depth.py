@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bone_rotations import _levels as depth_levels
+from .bone_rotations import depth_levels
 from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear
 from .isometry import thrown_twins

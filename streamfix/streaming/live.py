@@ -58,8 +58,8 @@ import numpy as np
 
 from ..core import kernels, ray_depth
 from ..core.excursion import bone_into
-from ..core.isometry import seen_bone_lengths
 from ..core.filters import HoltFilter as _HOLT
+from ..core.isometry import seen_bone_lengths
 
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
 
