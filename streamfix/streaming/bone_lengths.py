@@ -78,6 +78,13 @@ def raw_history_lengths(
         est_all, support_all = length_mode_with_support(raw_bones_seen, tolerance_m=BONE_SUPPORT_TOL_M)
         use = thin & (support_all > support)
         est, support = np.where(use, est_all, est), np.where(use, support_all, support)
+    # a bone twice as long as its twin, and a quarter metre longer, is no person's: a joint the
+    # sensor put at the wall's depth behind it for most of the memory (core/ray_depth.py) left
+    # the mode there, which the depth repair and the output's projection would then keep. Taken
+    # before the pooling below, which would otherwise average such a mode into its twin's (a
+    # shin thrown 1.7 m back for 1.5 s became 0.75 m, the depth repair then put the ankle there)
+    thrown = thrown_twins(est, mirror_bones)
+    est, support = np.where(thrown, est[mirror_bones], est), np.where(thrown, support[mirror_bones], support)
     # a mode is a length only if it is a peak: clean samples of a rigid bone pile up
     # within millimetres, corrupted ones spread over decimetres (80 % of coordinates
     # corrupted: 2-5 % of samples near the mode, real sensors 14-90 %)
@@ -85,18 +92,13 @@ def raw_history_lengths(
     with np.errstate(invalid="ignore"):
         near = (np.abs(raw_bones_seen - est[None, :]) <= BONE_SUPPORT_TOL_M).sum(axis=0)
     peaked = ~np.isfinite(est) | (near >= BONE_PEAK_SHARE * seen)  # unseen: the mirror's (below)
+    peaked = np.where(thrown, peaked[mirror_bones], peaked)  # a thrown bone's twin's peak stands for it
     # a limb the sensor has been guessing shares its lengths with its mirror (see
     # symmetric_lengths): its own samples, however many, are the sensor's guesses
     guessed = seen - np.isfinite(raw_bones).sum(axis=0)
     lo, hi = GUESSED_SHARE_POOLED
     pool = np.clip((guessed / np.maximum(seen, 1) - lo) / (hi - lo), 0.0, 1.0) * (guessed > 0)
     est, support = symmetric_lengths(est, support, mirror_bones, own_support=own, pool=pool)
-    # a bone twice as long as its twin, and a quarter metre longer, is no person's: a joint the
-    # sensor put at the wall's depth behind it for most of the memory (core/ray_depth.py) left
-    # the mode there, which the depth repair and the output's projection would then keep
-    thrown = thrown_twins(est, mirror_bones)
-    est, support = np.where(thrown, est[mirror_bones], est), np.where(thrown, support[mirror_bones], support)
-    peaked = np.where(thrown, peaked[mirror_bones], peaked)  # the twin's peak stands for it too
     if np.isfinite(est).all() and (support >= BONE_SUPPORT_FRAMES).all() and peaked.all():
         return est
     return None
