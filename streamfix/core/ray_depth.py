@@ -40,7 +40,7 @@ import numpy as np
 
 from .bone_rotations import depth_levels
 from .excursion import bone_into, parents_from_bones
-from .interpolate import interpolate_linear
+from .interpolate import interpolate_linear, neighbour_observations
 from .isometry import thrown_twins
 from .robust_stats import nanmedian
 
@@ -78,6 +78,10 @@ bone does not say which end is wrong; a parent off its length is judged first, o
 MIN_SENSOR_DISTANCE_M = 0.5
 """A frame whose joints' median lies nearer the origin than this is not in a sensor's camera space."""
 
+STALE_S = 0.2
+"""With the rate known, a sample further than this (s) from its joint's own good samples is
+expected where its parent carries the joint's offset in them, not where they lie in the room."""
+
 PROVISIONAL_MIN_FRAMES = 3
 """Frames a bone must be seen in before :func:`provisional_lengths` gives it a length."""
 
@@ -109,6 +113,24 @@ def provisional_lengths(lengths: np.ndarray, mirror: np.ndarray | None) -> np.nd
     return est
 
 
+def _carried_by_parent(world: np.ndarray, x: np.ndarray, own_good: np.ndarray, seen: np.ndarray, cols: np.ndarray,
+                       parents: np.ndarray, stale_frames: int) -> np.ndarray:
+    """``world`` ``(T, n, 3)`` (joints ``cols`` where their own good samples put them, linear in
+    time) with the samples more than ``stale_frames`` from any good one replaced by their parent's
+    position plus the joint's offset to it in the good samples (linear in time)."""
+    T = len(x)
+    prev, nxt = neighbour_observations(own_good)
+    t = np.arange(T)[:, None]
+    stale = np.minimum(np.where(prev >= 0, t - prev, T), np.where(nxt < T, nxt - t, T)) > stale_frames
+    if not stale.any():
+        return world
+    rel_good = own_good & seen[:, parents]
+    offset = np.where(rel_good[..., None], x[:, cols] - x[:, parents], np.nan)
+    carried = interpolate_linear(offset, rel_good)[0] + x[:, parents]
+    use = stale & np.isfinite(carried).all(axis=2)
+    return np.where(use[..., None], carried, world)
+
+
 def repair_ray_depth(
     positions: np.ndarray,
     confidence: np.ndarray,
@@ -121,6 +143,7 @@ def repair_ray_depth(
     proximal_fraction: float = PROXIMAL_FRACTION,
     joints: np.ndarray | None = None,
     reference: np.ndarray | None = None,
+    rate_hz: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(positions, repaired)``: the samples judged thrown along their camera ray (module doc)
     moved back along it to their bone's length, and the ``(T, J)`` bool mask of those samples.
@@ -174,6 +197,9 @@ def repair_ray_depth(
                 # put back at the wrong one of its two roots) does not (linear in time, joint by joint)
                 own_good = seen[:, need] & ~raw_stretched[:, need]
                 own[:, need] = interpolate_linear(np.where(own_good[..., None], x[:, need], np.nan), own_good)[0]
+                if rate_hz is not None:
+                    own[:, need] = _carried_by_parent(own[:, need], x, own_good, seen, need, pj[need],
+                                                      int(round(STALE_S * rate_hz)))
             else:
                 own[:, need] = ref[:, need]
                 # a reference that took the throw itself (the live output followed a joint thrown

@@ -650,7 +650,7 @@ class BridgingWindowSolver:
                 twins = mirror_bones(skeleton) if np.array_equal(b, skeleton.bone_array) else None
                 lengths = provisional_lengths(seen_bone_lengths(x, conf > 0, b), twins)
                 floor_m = PROVISIONAL_FLOOR_M
-            x, along_ray = repair_ray_depth(x, conf, bones, lengths, floor_m=floor_m)
+            x, along_ray = repair_ray_depth(x, conf, bones, lengths, floor_m=floor_m, rate_hz=rate_hz)
             if along_ray.any():
                 conf = np.where(along_ray, self.fill_confidence, conf)
                 replaced = along_ray if replaced is None else (replaced | along_ray)
