@@ -172,6 +172,15 @@ def test_a_thinly_supported_thrown_bone_is_not_averaged_into_its_twin():
     est = raw_history_lengths(raw, raw, mirror, 30.0)
     assert est is not None
     assert est[k] == pytest.approx(np.median(raw[:, mirror[k]]), abs=0.003)
+    # both shins at the wall for most of the memory (from frames 6 and 12 on): no twin can tell,
+    # but no person's bone is longer than MAX_BONE_M, and such samples make no length
+    both = body + rng.normal(0, 0.001, (48, len(BONES)))
+    both[6:, k] = 2.1 + rng.normal(0, 0.001, 42)
+    both[12:, mirror[k]] = 2.4 + rng.normal(0, 0.001, 36)
+    assert raw_history_lengths(both, both, mirror, 30.0)[[k, mirror[k]]].min() > 2.0  # the wall's modes
+    est = raw_history_lengths(both, both, mirror, 30.0, max_length_m=ray_depth.MAX_BONE_M)
+    assert est is not None
+    np.testing.assert_allclose(est[[k, mirror[k]]], body[[k, mirror[k]]], atol=0.003)
 
 
 @pytest.mark.parametrize("take, seed, joint, before", [("old_13_000", 0, "AnkleLeft", (0.43, 0.36)),
@@ -198,6 +207,24 @@ def test_a_joint_thrown_for_a_whole_short_take_is_put_back(shared_data, take, se
     assert err.mean() < 0.4 * before[method == "streamfix_serve"]
 
 
+@pytest.mark.parametrize("method", ["streamfix", "streamfix_serve"])
+def test_both_wrists_thrown_for_most_of_a_take_are_put_back(shared_data, method):
+    """Both wrists at the wall's depth (the left for 27 of 48 frames, the right for 47): both
+    forearms' medians and modes lie at the wall, so neither twin can say the other is thrown,
+    and clean left the wrists 1.8 / 1.5 m off (serve 0.5 / 0.4 m). No person has a bone longer
+    than ``MAX_BONE_M``: such samples make no length, and a bone with none takes its twin's."""
+    truth = ground_truth(shared_data / "xia_bvh" / "depressed_13_000.bvh").positions
+    c = apply_sensor_errors(truth, np.random.default_rng(2), ["noise", "depth"], rate_hz=30.0, min_events=1)
+    err_in = np.linalg.norm(c.positions - truth, axis=2)
+    wrists = [KINECT_V2.index("WristLeft"), KINECT_V2.index("WristRight")]
+    mask = c.corrupted & (err_in > 0.3)
+    assert mask[:, wrists].sum(axis=0).min() > len(truth) / 2, "both thrown for most of the take"
+    out = run_method(method, c.positions, c.confidence, BONES, 30.0, skeleton=KINECT_V2)
+    err = np.linalg.norm(out - truth, axis=2)
+    for j in wrists:
+        assert err[mask[:, j], j].mean() < 0.06, (KINECT_V2.joint_names[j], err[mask[:, j], j].mean())
+
+
 def test_provisional_lengths_are_medians_with_a_thrown_bone_taking_its_twins():
     from streamfix.limbs import mirror_bones
 
@@ -205,9 +232,9 @@ def test_provisional_lengths_are_medians_with_a_thrown_bone_taking_its_twins():
     rng = np.random.default_rng(8)
     body = np.linspace(0.05, 0.5, len(BONES))
     lengths = body + rng.normal(0.0, 0.005, (11, len(BONES)))  # 11 frames of a sensor's noise
-    lengths[3, :] = 3.0  # one frame with everything thrown: a median ignores it
+    lengths[3, :] = 0.7  # one frame with everything thrown: a median ignores it
     k = int(np.flatnonzero(BONES[:, 1] == KINECT_V2.index("WristLeft"))[0])
-    lengths[:, k] = 1.9  # the left forearm at the wall's depth in every frame
+    lengths[:, k] = 0.7  # the left forearm thrown in every frame (a bone a person could have, alone)
     lengths[:, 0] = np.where(np.arange(11) < 9, np.nan, 0.1)  # a bone seen twice only: no length yet
     est = provisional_lengths(lengths, mirror)
     assert np.isnan(est[0])
@@ -215,12 +242,21 @@ def test_provisional_lengths_are_medians_with_a_thrown_bone_taking_its_twins():
     others = np.setdiff1d(np.arange(1, len(BONES)), [k])
     np.testing.assert_allclose(est[others], np.median(lengths[:, others], axis=0))
     np.testing.assert_allclose(est[others], body[others], atol=0.006)
-    assert provisional_lengths(lengths, None)[k] == pytest.approx(1.9)  # without twins: its own
+    assert provisional_lengths(lengths, None)[k] == pytest.approx(0.7)  # without twins: its own
+    assert np.isnan(provisional_lengths(np.full((11, len(BONES)), 1.9), None)).all()  # no person's bones
     # a collapsed twin (an inferred wrist on its elbow) says nothing of a healthy forearm's length
     healthy = lengths.copy()
     healthy[:, k] = 0.27
     healthy[:, mirror[k]] = 0.014
     assert provisional_lengths(healthy, mirror)[k] == pytest.approx(0.27)
+    # both forearms longer than any person's bone in most frames: their few other samples decide,
+    # and a bone left with too few takes its twin's
+    both = lengths.copy()
+    both[:, k], both[:, mirror[k]] = 1.9, 2.2
+    both[:2, k] = 0.26
+    both[:3, mirror[k]] = 0.25
+    est = provisional_lengths(both, mirror)
+    assert est[mirror[k]] == pytest.approx(0.25) and est[k] == pytest.approx(0.25)
     with pytest.raises(ValueError, match="mirror"):
         provisional_lengths(lengths, mirror[:-1])
     with pytest.raises(ValueError, match="frames, bones"):

@@ -19,13 +19,18 @@ parent: ``|s u - p| = L`` with ``u`` the unit ray through the joint, two roots
 ``s = u.p +- sqrt(L^2 - |p|^2 + (u.p)^2)``. The root nearest the joint's offset to its
 parent in the good samples around it (interpolated in time) is taken, else the one on the
 sensor's side of the two (the wall the depth came from is behind the limb), unless that one
-lies behind the sensor. Parents first: an elbow put back moves the point its wrist is judged
+lies behind the sensor. Where a joint is expected (a thrown sample departs from that along its
+ray, a good one whose parent was thrown does not) is where its own good samples around put it,
+linear in time; more than ``STALE_S`` from any of them (a throw from a take's first frames on,
+the body moving on), where its parent carries the joint's offset in them. Parents first: an elbow put back moves the point its wrist is judged
 from. A joint two bones end at (MediaPipe's graph) is judged by the later-listed one.
 
 Lengths: the body's (the engine's estimate); before it has one (a stream's first second, when
 a person walking into view is most often half on the silhouette's edge) the median of the raw
 frames at hand (:func:`provisional_lengths`), with only gross throws judged
-(``PROVISIONAL_FLOOR_M``).
+(``PROVISIONAL_FLOOR_M``). Either way a sample longer than ``MAX_BONE_M`` is no person's bone
+and makes no length (both wrists thrown for most of a take leave both forearms' medians at the
+wall, where no left/right comparison can tell).
 
 The coordinates must be a sensor's camera space (the sensor at the origin): the caller
 says so by the layout (depth sensors and pose estimators, not optical markers or BVH), and a
@@ -44,7 +49,7 @@ from .interpolate import interpolate_linear, neighbour_observations
 from .isometry import thrown_twins
 from .robust_stats import nanmedian
 
-__all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
+__all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "MAX_BONE_M", "STALE_S", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
            "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M"]
 
 FRACTION = 0.5
@@ -82,6 +87,11 @@ STALE_S = 0.2
 """With the rate known, a sample further than this (s) from its joint's own good samples is
 expected where its parent carries the joint's offset in them, not where they lie in the room."""
 
+MAX_BONE_M = 0.75
+"""No bone of a person in these layouts is longer (m; a tall adult's thigh is about half a metre):
+a sample longer is a throw whatever its twin's says, and a length is never made of it (both
+wrists at the wall's depth for most of a take leave both forearms' medians there)."""
+
 PROVISIONAL_MIN_FRAMES = 3
 """Frames a bone must be seen in before :func:`provisional_lengths` gives it a length."""
 
@@ -107,9 +117,12 @@ def provisional_lengths(lengths: np.ndarray, mirror: np.ndarray | None) -> np.nd
     n = np.asarray(lengths, dtype=np.float64)
     if n.ndim != 2:
         raise ValueError(f"lengths must be (frames, bones), got {n.shape}")
+    with np.errstate(invalid="ignore"):
+        n = np.where(n > MAX_BONE_M, np.nan, n)
     est = np.where(np.isfinite(n).sum(axis=0) >= PROVISIONAL_MIN_FRAMES, nanmedian(n, axis=0), np.nan)
     if mirror is not None and len(est):
-        est = np.where(thrown_twins(est, mirror), est[np.asarray(mirror, dtype=np.intp)], est)
+        m = np.asarray(mirror, dtype=np.intp)
+        est = np.where(thrown_twins(est, m) | np.isnan(est), est[m], est)  # unseen or thrown: the twin's
     return est
 
 

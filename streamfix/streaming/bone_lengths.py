@@ -52,7 +52,8 @@ def record_raw_bones(body: Body, bones: np.ndarray) -> None:
 
 
 def raw_history_lengths(
-    raw_bones: np.ndarray, raw_bones_seen: np.ndarray, mirror_bones: np.ndarray, rate_hz: float
+    raw_bones: np.ndarray, raw_bones_seen: np.ndarray, mirror_bones: np.ndarray, rate_hz: float,
+    max_length_m: float | None = None,
 ) -> np.ndarray | None:
     """``(B,)`` densest-mode bone lengths (m) over the remembered raw samples, if well supported.
 
@@ -67,7 +68,13 @@ def raw_history_lengths(
     estimate baked into the clean output cannot persist. Measured on CMU 131_01 / 131_02
     at 30 Hz (seeds 1310, 1320, 1, 2, 3, 4), streaming clean AJE / offline whole-sequence
     AJE: 1.01-1.56x with the clean-output median alone, 0.76-1.22x with this first.
+    ``max_length_m``: samples longer than this are no bone's (a person's, measured by a depth
+    sensor: :data:`streamfix.core.ray_depth.MAX_BONE_M`) and left out; None keeps every one.
     """
+    if max_length_m is not None:
+        with np.errstate(invalid="ignore"):
+            raw_bones = np.where(raw_bones > max_length_m, np.nan, raw_bones)
+            raw_bones_seen = np.where(raw_bones_seen > max_length_m, np.nan, raw_bones_seen)
     est, support = length_mode_with_support(raw_bones, tolerance_m=BONE_SUPPORT_TOL_M)
     own = max(1, int(round(BONE_OWN_SUPPORT_S * rate_hz)))
     thin = support < own
@@ -120,18 +127,20 @@ class LengthSources:
     mirror_bones: np.ndarray
     rate_hz: float
     fallback: np.ndarray | None
+    max_length_m: float | None = None
 
     def resolve(self) -> np.ndarray | None:
         """``(B,)`` lengths in metres, or None."""
         if self.raw_bones is not None:
-            raw = raw_history_lengths(self.raw_bones, self.raw_bones_seen, self.mirror_bones, self.rate_hz)
+            raw = raw_history_lengths(self.raw_bones, self.raw_bones_seen, self.mirror_bones, self.rate_hz,
+                                      self.max_length_m)
             if raw is not None:
                 return raw
         return self.fallback
 
 
 def length_sources(body: Body, bones: np.ndarray, mirror_bones: np.ndarray, rate_hz: float,
-                   fixed_lengths: np.ndarray | None) -> LengthSources:
+                   fixed_lengths: np.ndarray | None, max_length_m: float | None = None) -> LengthSources:
     """What the body's bone lengths come from (resolved where the window is solved).
 
     ``fixed_lengths`` if configured; else the densest mode of the last ``BONE_MEMORY_S``
@@ -142,6 +151,7 @@ def length_sources(body: Body, bones: np.ndarray, mirror_bones: np.ndarray, rate
     remembered for a re-identified body, else None (the window solver estimates them
     from its window). Measured on CMU 131 at 20 % corruption: per-window estimates only,
     1.18-1.32x the whole-sequence AJE; clean history after 3 s, 1.11-1.12x.
+    ``max_length_m``: raw samples longer than this are left out (:func:`raw_history_lengths`).
     """
     if fixed_lengths is not None:
         return LengthSources(None, None, mirror_bones, rate_hz, fixed_lengths)
@@ -153,7 +163,8 @@ def length_sources(body: Body, bones: np.ndarray, mirror_bones: np.ndarray, rate
     if not len(bones):
         return LengthSources(None, None, mirror_bones, rate_hz, fallback)
     record_raw_bones(body, bones)
-    return LengthSources(body.raw_bones.copy(), body.raw_bones_seen.copy(), mirror_bones, rate_hz, fallback)
+    return LengthSources(body.raw_bones.copy(), body.raw_bones_seen.copy(), mirror_bones, rate_hz, fallback,
+                         max_length_m)
 
 
 def sample_clean_bones(body: Body, pos: np.ndarray, bones: np.ndarray, hop: int) -> np.ndarray | None:

@@ -146,6 +146,7 @@ import numpy as np
 from ..core.filters import twiced_binomial_taps
 from ..core.pose_bias import correction_gain
 from ..core.pose_bias_live import LivePoseBias
+from ..core.ray_depth import MAX_BONE_M
 from ..frames import BodyFrame, SkeletonFrame, check_frame
 from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from ..limbs import mirror_bones
@@ -732,7 +733,8 @@ class StreamEngine:
 
     def _length_sources(self, body: Body) -> LengthSources:
         """What the body's bone lengths come from (:func:`~streamfix.streaming.bone_lengths.length_sources`)."""
-        return length_sources(body, self.bones, self._mirror_bones, self.cfg.rate_hz, self._fixed_lengths)
+        return length_sources(body, self.bones, self._mirror_bones, self.cfg.rate_hz, self._fixed_lengths,
+                              MAX_BONE_M if self.skeleton.name in CAMERA_SPACE_SKELETONS else None)
 
     # ------------------------------------------------------------------ windows
     def _schedule(self, st: StreamState, body: Body, end: int, final: bool = False,
