@@ -377,7 +377,7 @@ class LivePath:
         n = self._raw_lengths_n
         # the median moves slowly: taken again every PROVISIONAL_EVERY frames once a few are in
         # (each take costs about 0.2 ms, a live frame otherwise 0.1)
-        if self._provisional is None or n <= 2 * ray_depth.PROVISIONAL_MIN_FRAMES or n % PROVISIONAL_EVERY == 0:
+        if self._provisional is None or n <= 2 * PROVISIONAL_EVERY or n % PROVISIONAL_EVERY == 0:
             self._provisional = ray_depth.provisional_lengths(self._raw_lengths[:n], self._mirror_bones)
         return self._provisional
 
