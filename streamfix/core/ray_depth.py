@@ -16,9 +16,11 @@ The repair: a joint whose bone to its parent is longer than the body's length by
 parent (moving it along the ray can give the bone its length back) and whose parent sits
 where its own bone allows, is moved along its ray to the point at the bone's length from the
 parent: ``|s u - p| = L`` with ``u`` the unit ray through the joint, two roots
-``s = u.p +- sqrt(L^2 - |p|^2 + (u.p)^2)``. The root nearest the joint's offset to its
-parent in the good samples around it (interpolated in time) is taken, else the one on the
-sensor's side of the two (the wall the depth came from is behind the limb), unless that one
+``s = u.p +- sqrt(L^2 - |p|^2 + (u.p)^2)``. Where the joint's own seen children (an ankle for a
+knee) lie at their bones' lengths from only one of the two, that one is taken (near the edge of
+the sphere the two lie close, and the leg swings from one to the other); else the root nearest
+the joint's offset to its parent in the good samples around it (interpolated in time), else the
+one on the sensor's side of the two (the wall the depth came from is behind the limb), unless that one
 lies behind the sensor. Where a joint is expected (a thrown sample departs from that along its
 ray, a good one whose parent was thrown does not) is where its own good samples around put it,
 linear in time; more than ``STALE_S`` from any of them (a throw from a take's first frames on,
@@ -41,6 +43,8 @@ Arrays: positions ``(T, J, 3)`` metres, confidence ``(T, J)``, bones ``(B, 2)`` 
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from .bone_rotations import depth_levels
@@ -50,7 +54,7 @@ from .isometry import thrown_twins
 from .robust_stats import nanmedian
 
 __all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "MAX_BONE_M", "STALE_S", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
-           "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M"]
+           "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M", "CHILD_FIT", "CHILD_MARGIN_M"]
 
 FRACTION = 0.5
 """A bone longer than the body's length by this fraction of it (and ``FLOOR_M``) is judged."""
@@ -75,6 +79,13 @@ to the wrist across the run, places it better (10 mm against 58 in ``tests/test_
 SIDEWAYS_RATIO = 0.5
 """A sample whose departure from where it is expected has a part across the ray larger than
 this times its part along the ray was not thrown along it (a random-direction jump)."""
+
+CHILD_FIT = 0.25
+"""A thrown joint's seen children choose between the two points on its ray only where one point
+puts each of them within this fraction of its bone's length (or ``RAY_NOISE_M``)..."""
+
+CHILD_MARGIN_M = 0.03
+"""...and puts them closer to their lengths than the other point does by this much (m) per child."""
 
 PROXIMAL_FRACTION = 0.25
 """The parent is trusted only where its own bone is within this fraction of its length, or of
@@ -145,6 +156,44 @@ def _carried_by_parent(world: np.ndarray, x: np.ndarray, own_good: np.ndarray, s
     carried = interpolate_linear(offset, rel_good)[0] + x[:, parents]
     use = stale & np.isfinite(carried).all(axis=2)
     return np.where(use[..., None], carried, world)
+
+
+@lru_cache(maxsize=64)
+def _child_table(parents_bytes: bytes) -> np.ndarray:
+    """``(J, C)`` each joint's children (-1 padded; ``C`` >= 1), read-only; ``parents_bytes``: a
+    ``(J,)`` intp parent array's ``tobytes()`` (the key it is cached by)."""
+    parents = np.frombuffer(parents_bytes, dtype=np.intp)
+    J = len(parents)
+    counts = np.bincount(parents[parents >= 0], minlength=J)
+    table = np.full((J, max(1, int(counts.max()) if J else 1)), -1, dtype=np.intp)
+    for j in np.flatnonzero(counts):  # once per skeleton, over its joints
+        kids = np.flatnonzero(parents == j)
+        table[j, :len(kids)] = kids
+    table.flags.writeable = False
+    return table
+
+
+def _children_choose(x: np.ndarray, seen: np.ndarray, length: np.ndarray, kids: np.ndarray, near: np.ndarray,
+                     far: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(told, near_is_it)`` ``(T, n)``: where the seen children ``kids`` ``(n, C)`` of ``n`` thrown
+    joints tell the two points on each one's ray apart (each child at its bone's length from one
+    of them within ``CHILD_FIT``, and that one closer to it by ``CHILD_MARGIN_M`` over the
+    children), and whether the near point is the one."""
+    has = kids >= 0
+    k = np.maximum(kids, 0)
+    L = np.where(has, length[k], np.nan)  # (n, C)
+    use = has[None] & seen[:, k] & np.isfinite(L)[None]  # (T, n, C)
+    if not use.any():
+        return np.zeros(near.shape[:2], dtype=bool), np.zeros(near.shape[:2], dtype=bool)
+    pos = x[:, k]  # (T, n, C, 3)
+    miss_near = np.abs(np.linalg.norm(pos - near[:, :, None], axis=3) - L[None])
+    miss_far = np.abs(np.linalg.norm(pos - far[:, :, None], axis=3) - L[None])
+    cost_near = np.where(use, miss_near, 0.0).sum(axis=2)
+    cost_far = np.where(use, miss_far, 0.0).sum(axis=2)
+    tol = np.where(use, np.maximum(CHILD_FIT * L[None], RAY_NOISE_M), 0.0).sum(axis=2)
+    n_used = use.sum(axis=2)
+    told = (n_used > 0) & (np.minimum(cost_near, cost_far) <= tol) & (np.abs(cost_near - cost_far) > CHILD_MARGIN_M * n_used)
+    return told, cost_near < cost_far
 
 
 def repair_ray_depth(
@@ -242,6 +291,7 @@ def repair_ray_depth(
             camera_known[need] = True
         return camera
 
+    children = _child_table(parents.tobytes())
     into_ok = np.ones((T, J), dtype=bool)  # each joint's own bone within proximal_fraction (roots: True)
     for level_all, _ in depth_levels(parents.tobytes())[1:]:  # roots have no bone to judge
         bone_all = np.linalg.norm(x[:, level_all] - x[:, parents[level_all]], axis=2)
@@ -279,6 +329,10 @@ def repair_ray_depth(
                 known = np.isfinite(guess).all(axis=2)
                 use_near = np.where(known, np.linalg.norm(near - guess, axis=2) <= np.linalg.norm(far - guess, axis=2),
                                     True)  # no guess: the sensor's side
+                # the joint's own children say which of the two it is where they can: each must lie at
+                # its bone's length from it (the ankle from a knee), which only one point may give them
+                told, child_near = _children_choose(x, seen, length, children[level], near, far)
+                use_near = np.where(told, child_near, use_near)
                 use_near &= along - h > 0  # never behind the sensor
                 fixed = np.where(use_near[..., None], near, far)
                 x[:, level] = np.where(cand[..., None], fixed, x[:, level])
