@@ -18,14 +18,15 @@ where its own bone allows, is moved along its ray to the point at the bone's len
 parent: ``|s u - p| = L`` with ``u`` the unit ray through the joint, two roots
 ``s = u.p +- sqrt(L^2 - |p|^2 + (u.p)^2)``. Where the joint's own seen children (an ankle for a
 knee) lie at their bones' lengths from only one of the two, that one is taken (near the edge of
-the sphere the two lie close, and the leg swings from one to the other); else the root nearest
-the joint's offset to its parent in the good samples around it (interpolated in time), else the
-one on the sensor's side of the two (the wall the depth came from is behind the limb), unless that one
-lies behind the sensor. Where a joint is expected (a thrown sample departs from that along its
-ray, a good one whose parent was thrown does not) is where its own good samples around put it,
-linear in time; more than ``STALE_S`` from any of them (a throw from a take's first frames on,
-the body moving on), where its parent carries the joint's offset in them. Parents first: an elbow put back moves the point its wrist is judged
-from. A joint two bones end at (MediaPipe's graph) is judged by the later-listed one.
+the sphere the two lie close, and a swinging leg crosses from one to the other); else the root
+nearest the joint's offset to its parent in the good samples around it (interpolated in time),
+else the one on the sensor's side of the two (the wall the depth came from is behind the limb),
+unless that one lies behind the sensor. Where a joint is expected (a thrown sample departs from
+that along its ray, a good one whose parent was thrown does not) is where its own good samples
+around put it, linear in time; more than ``STALE_S`` from any of them (a throw from a take's
+first frames on, the body moving on), where its parent carries the joint's offset in them.
+Parents first: an elbow put back moves the point its wrist is judged from. A joint two bones
+end at (MediaPipe's graph) is judged by the later-listed one.
 
 Lengths: the body's (the engine's estimate); before it has one (a stream's first second, when
 a person walking into view is most often half on the silhouette's edge) the median of the raw
@@ -218,7 +219,8 @@ def repair_ray_depth(
     ``reference`` ``(T, J, 3)`` m: where each joint is expected (NaN: unknown; a reference
     joint whose own bone is stretched counts as unknown), in place of the interpolation
     between its good samples: a causal caller (the live path, one frame at a time) passes
-    its last output."""
+    its last output. ``rate_hz`` (Hz): without a reference, samples more than ``STALE_S`` from
+    their joint's good ones are expected where the parent carries them (None: never)."""
     x = np.array(positions, dtype=np.float64)
     conf = np.asarray(confidence, dtype=np.float64)
     T, J = conf.shape
