@@ -124,11 +124,13 @@ def provisional_lengths(lengths: np.ndarray, mirror: np.ndarray | None) -> np.nd
     samples, and until then nothing is judged, while a person walking into view is where a
     depth sensor reads the wall behind a limb most. ``lengths`` ``(N, B)``: raw bone lengths of
     the frames at hand (a window's, or the live path's memory of the stream so far; NaN where an
-    end is not seen, :func:`~streamfix.core.isometry.seen_bone_lengths`); each bone takes its median over them
-    (a throw that lasts less than half of those frames does not move it), NaN with fewer than
-    :data:`PROVISIONAL_MIN_FRAMES`; one that is still twice its left/right twin's and a quarter
-    metre longer (a throw from the first frame on: :func:`~streamfix.core.isometry.thrown_twins`)
-    takes the twin's. ``mirror`` ``(B,)``: each bone's counterpart (None: no twins)."""
+    end is not seen, :func:`~streamfix.core.isometry.seen_bone_lengths`); samples longer than
+    :data:`MAX_BONE_M` are left out, and each bone takes its median over the rest (a throw that
+    lasts less than half of those frames does not move it), NaN with fewer than
+    :data:`PROVISIONAL_MIN_FRAMES`. A bone left NaN, or still twice its left/right twin's and a
+    quarter metre longer (a throw from the first frame on:
+    :func:`~streamfix.core.isometry.thrown_twins`), takes the twin's. ``mirror`` ``(B,)``: each
+    bone's counterpart (None: no twins)."""
     n = np.asarray(lengths, dtype=np.float64)
     if n.ndim != 2:
         raise ValueError(f"lengths must be (frames, bones), got {n.shape}")
