@@ -180,7 +180,7 @@ from ..core.isometry import seen_bone_lengths
 from ..limbs import mirror_bones
 from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
-from .solver_api import RELEASED_KEY, WindowOutput
+from .solver_api import JUDGED_KEY, RELEASED_KEY, WindowOutput
 
 __all__ = [
     "BridgingWindowSolver",
@@ -613,13 +613,14 @@ class BridgingWindowSolver:
         released = None  # (T, J) frozen inferred samples released: carried to the next window
         state, released_before = split_state(state)
         plant_weight = None  # foot support's correction weight (T, J), when it planted a leg
+        swapped = None  # (T, J) samples relabelled from their left/right twin
         if self.undo_swaps and skeleton is not None:
             # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
             from .swaps import unswap_window
 
             # exchanged back, not flagged recovered: they are observed samples relabelled,
             # and the clean history must keep them so the next window sees the same labels
-            x, _ = unswap_window(x, obs, skeleton, rate_hz, history)
+            x, swapped = unswap_window(x, obs, skeleton, rate_hz, history)
         if self.release_frozen and skeleton is not None:
             # inferred limbs that stopped bending (the sensor's frozen or drifting guess,
             # core/frozen.py) become missing: the bridge and the solver fill them
@@ -697,6 +698,9 @@ class BridgingWindowSolver:
                 dropped = jumped if released is None else (released | jumped)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name, released)
+        judged = swapped if replaced is None else (replaced if swapped is None else replaced | swapped)
+        if judged is not None and judged.any():
+            res.info[JUDGED_KEY] = judged  # the live topic carries these (streaming/live_carry.py)
         if replaced is None:
             return res
         res = _with_recovered(res, replaced)

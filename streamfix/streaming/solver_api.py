@@ -8,7 +8,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["NOISE_SHARE_KEY", "RELEASED_KEY", "WindowOutput", "WindowSolver", "WindowSolverError"]
+__all__ = ["NOISE_SHARE_KEY", "RELEASED_KEY", "JUDGED_KEY", "WindowOutput", "WindowSolver", "WindowSolverError"]
 
 NOISE_SHARE_KEY = "sensor_noise_share"
 """Key of a window solver's ``info``: in [0, 1], how much of the window is sensor noise
@@ -21,6 +21,14 @@ frozen guess or a limb's jump and replaced (:mod:`streamfix.streaming.frozen_rel
 :mod:`streamfix.core.limb_jumps`). An older window that saw less of the run kept them as
 measurements; the engine drops what those blended there
 (:func:`~streamfix.streaming.overlap_add.blend_window`)."""
+
+JUDGED_KEY = "judged"
+"""Key of a window solver's ``info``: ``(T, J)`` bool, the samples its real-sensor stages judged
+wrong: replaced (a frozen or jumped limb, a dislocated end, a folded leg, a depth thrown along its
+ray, an inferred limb the body contradicts) or relabelled from their left/right twin (a swap,
+which stays observed, not ``recovered``). Not the solver's own outliers, which include a limb
+that merely moved faster than the window's edge could follow. The engine's live topic carries
+the window's verdict on these (:mod:`streamfix.streaming.live_carry`)."""
 
 WindowSolver = Callable[..., Any]
 """``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,

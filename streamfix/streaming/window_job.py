@@ -14,7 +14,7 @@ import numpy as np
 
 from ..skeletons import Skeleton
 from .bodies import Body, Job
-from .solver_api import NOISE_SHARE_KEY, RELEASED_KEY, WindowSolver
+from .solver_api import JUDGED_KEY, NOISE_SHARE_KEY, RELEASED_KEY, WindowSolver
 
 __all__ = ["solve_job", "warm_start_state"]
 
@@ -86,6 +86,8 @@ def solve_job(
         job.n_iter = int(getattr(res, "iterations", 0) or 0)
         info = getattr(res, "info", None) or {}
         job.noise_share = float(np.clip(info.get(NOISE_SHARE_KEY, 0.0), 0.0, 1.0))
+        judged = info.get(JUDGED_KEY)
+        job.judged = None if judged is None or np.shape(judged) != rec.shape else np.asarray(judged, dtype=bool)
         released = info.get(RELEASED_KEY)
         job.released = None if released is None or np.shape(released) != rec.shape else np.asarray(released, dtype=bool)
         job.converged = bool(getattr(res, "converged", True))
