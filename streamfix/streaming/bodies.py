@@ -11,6 +11,7 @@ from ..frames import BodyFrame
 from ..skeletons import Skeleton
 from .config import EngineConfig
 from .live import LivePath
+from .live_carry import WindowCarry
 from .ring import RingBuffer
 
 __all__ = [
@@ -142,6 +143,7 @@ class Body:
         self.raw_bones_end = 0  # absolute frame index up to which raw_bones is filled
         self.prior_lengths = prior_lengths
         self.live_path: LivePath | None = None
+        self.live_carry: WindowCarry | None = None  # EngineConfig.live_carry: the windows' verdict on live
         # the body's recent clean output for history-trained solvers (ring, oldest first on read)
         self.hist = np.full((max(1, int(round(HISTORY_S * cfg.rate_hz))), J, 3), np.nan)
         self.hist_n = 0

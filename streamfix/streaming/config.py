@@ -83,6 +83,10 @@ class EngineConfig:
     frames when the solution is current (the live output is "corrected by the last
     solved window"; it stays causal). Off by default: the window's newest frames have no
     lookahead and measured worse than the Theil-Sen gate alone.
+    live_carry: the live topic takes a solved window's pose of the joints it found broken on
+    its newest frames (frozen, swapped, lost, jumped) and carries it, from their parents, until
+    a newer window or the sensor says otherwise (:mod:`streamfix.streaming.live_carry`); False:
+    the live topic is the live path's own output alone.
     live_output: run the live path and emit ``live`` frames. False (offline cleaning,
     which keeps only ``clean``) skips the live path's per-frame work; ``clean`` is
     unchanged except for a joint that no solved window gives a value (a window that
@@ -131,6 +135,7 @@ class EngineConfig:
     lookahead_s: float | None = None
     live_anchor: bool = False
     live_output: bool = True
+    live_carry: bool = True
     handover_s: float = HANDOVER_S
     startup_hop: int | None = None
     output_smooth_s: float = OUTPUT_SMOOTH_S

@@ -175,6 +175,7 @@ from .degradation import Degradation
 from .finalise import final_end, finalise_frames
 from .histogram import Histogram
 from .live import LivePath
+from .live_carry import WindowCarry
 from .overlap_add import blend_window
 from .solver_api import WindowOutput, WindowSolver
 from .solver_pool import SolverPool, shared_pool
@@ -650,6 +651,8 @@ class StreamEngine:
                                           mirror_bones=self._mirror_bones)
                 lengths = self._fixed_lengths if self._fixed_lengths is not None else prior
                 body.live_path.set_bone_lengths(lengths)
+                if self.cfg.live_carry and self.cfg.live_output:
+                    body.live_carry = WindowCarry(body.live_path.levels, self.n_joints, self.cfg.rate_hz)
                 ordinal = self.counters["bodies_seen"] if self._body_ordinal is None else self._body_ordinal()
                 body.phase = hop_phase(ordinal, self.hop)
                 st.bodies[bid] = body
@@ -671,7 +674,11 @@ class StreamEngine:
                 if self.cfg.live_output:
                     if body.absent > 3:
                         body.live_path.reset()
+                        if body.live_carry is not None:
+                            body.live_carry.reset()
                     y, rec = body.live_path.step(pos, valid, t_s)
+                    if body.live_carry is not None:
+                        y, rec = body.live_carry.apply(pos, valid, y, rec, n)
                     body.store_present(k, n, pos, conf, valid, y, rec)
                 else:  # offline: no live path (its output would be discarded)
                     body.store_present(k, n, pos, conf, valid, np.nan, True)
@@ -865,6 +872,14 @@ class StreamEngine:
                 blend_window(body, job, prev_end, self.cfg, self._output_taps, self._fill_taps)
                 if self.cfg.live_anchor and self.cfg.live_output and job.end == body.count and job.result_pos is not None:
                     body.live_path.anchor(job.result_pos[-3:])
+                if body.live_carry is not None and job.result_pos is not None and body.count - job.end < self.hop:
+                    # the window's newest frames: its verdict on now
+                    rows = np.arange(max(job.start, job.end - body.live_carry.confirm_frames), job.end) % body.cap
+                    n = len(rows)
+                    judged = ~body.valid[rows]  # the sensor gave nothing, or a stage judged it wrong
+                    if job.judged is not None:
+                        judged = judged | job.judged[-n:]
+                    body.live_carry.take(job.result_pos[-n:], body.raw[rows], body.valid[rows], judged, job.end - 1)
 
     def _finalise(self, st: StreamState, body: Body) -> None:
         """Move the body's frames whose clean value can no longer change to the stream

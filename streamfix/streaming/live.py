@@ -49,6 +49,9 @@ One Euro, the projection without propagation) runs as one compiled call per body
 
 A joint missing in the input is predicted (the gate's line; held when it has too few
 samples, and always with ``gate='none'``) and flagged recovered. Units: metres, seconds.
+
+What the window solver finds and one frame cannot (a frozen, swapped or lost limb) reaches the
+live topic after this path, in the engine (:mod:`streamfix.streaming.live_carry`).
 """
 from __future__ import annotations
 

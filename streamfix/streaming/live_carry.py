@@ -1,0 +1,121 @@
+"""The windows' verdict carried onto the ``live`` topic: a limb the solver found broken stays mended.
+
+Why: the live path sees one frame at a time, so it cannot tell a limb the sensor froze, swapped
+with its mirror or lost for a second from a limb that really is there; the window solver can
+(:mod:`streamfix.streaming.bridging`), but its verdict reaches only the ``clean`` topic, half a
+second later. Every solved window ends at the newest frame it was given, so its last frame is
+its best guess of *now*. Where the window's real-sensor stages judged a joint's newest samples
+wrong (:data:`~streamfix.streaming.solver_api.JUDGED_KEY`: frozen, swapped, jumped, dislocated,
+folded, thrown along its ray) or the sensor has none, and the window puts the joint far from the
+sample, the live topic takes the window's pose of that joint, as an offset from
+its parent in the skeleton tree, and keeps it while the stream goes on: each carried joint is
+placed at ``parent + (solved_j - solved_parent)``, parents first, so a carried limb moves with the
+body that carries it. A carried joint is let go when the next window no longer finds it off,
+when the sensor's own sample comes back within :data:`CARRY_MIN_M` of it (a swap ended, a
+frozen limb moves again), or after :data:`CARRY_MAX_S` without a window renewing it.
+
+Pure arrays in, arrays out (metres, seconds). The engine feeds it
+(:class:`~streamfix.streaming.engine.StreamEngine`, ``EngineConfig.live_carry``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["WindowCarry", "CARRY_MIN_M", "CARRY_MAX_S"]
+
+CARRY_MIN_M = 0.08
+"""A window's newest frame must place a joint this far (m) from the sensor's sample of that
+frame for the live topic to carry the window's pose of it: above a depth sensor's jitter
+(1-3 cm a sample) and a window's own edge error, below the limbs it mends (decimetres)."""
+CONFIRM_S = 0.1
+"""... on each of the window's newest frames this long (s): a verdict on a window's last frame
+or two is its least sure. On KERAAL an arm the sensor had right, flung up 19 cm in one frame,
+was an outlier of the window's last two frames only, and holding it there left it 0.7 m behind."""
+CARRY_MAX_S = 0.5
+"""How long (s) a carried joint is held without a newer window saying it is still off: a
+window comes every hop (1/3 s on serve's schedule); one that was skipped or failed must not
+leave a stale pose on the topic."""
+
+
+class WindowCarry:
+    """Per body: ``take`` a solved window's newest frame, ``apply`` it to each live frame after.
+
+    ``levels``: the skeleton tree as :func:`streamfix.streaming.live.tree_levels` gives it
+    ((parent, child) bones by depth); ``n_joints``; ``rate_hz`` (frames per second).
+    """
+
+    def __init__(self, levels: list[np.ndarray], n_joints: int, rate_hz: float) -> None:
+        self.levels = [np.asarray(lv, dtype=np.intp) for lv in levels]
+        self.parent = np.full(n_joints, -1, dtype=np.intp)
+        for lv in self.levels:
+            self.parent[lv[:, 1]] = lv[:, 0]
+        self.max_frames = max(int(round(CARRY_MAX_S * float(rate_hz))), 1)
+        self.confirm_frames = max(int(round(CONFIRM_S * float(rate_hz))), 1)
+        # the live path's own output of the recent frames (before any carry), by frame number
+        self.shown = np.full((self.max_frames + 1, n_joints, 3), np.nan)
+        self.shown_frame = np.full(self.max_frames + 1, -1, dtype=np.int64)
+        self.reset()
+
+    def reset(self) -> None:
+        """Carry nothing."""
+        n = len(self.parent)
+        self.held = np.zeros(n, dtype=bool)
+        self.offset = np.zeros((n, 3))
+        self.age = 0
+
+    def take(self, solved: np.ndarray, raw: np.ndarray, valid: np.ndarray, judged: np.ndarray, frame: int) -> None:
+        """A window's newest frames: its solution ``solved`` ``(n, J, 3)`` m, the raw samples ``raw``
+        ``(n, J, 3)`` and ``valid`` ``(n, J)`` of those frames, and ``judged`` ``(n, J)``, the
+        samples the window's stages judged wrong or the sensor did not give; ``frame`` the number
+        of the last of them. Carry
+        the joints the window judged on each of its last :data:`CONFIRM_S` worth of frames and
+        placed :data:`CARRY_MIN_M` or more from the sample (or gave a value where there is none),
+        and as far from what the live path itself made of the last frame (a joint the live path
+        already mended, a spike it gated or a depth it repaired, is left to it)."""
+        n = min(self.confirm_frames, len(solved))
+        solved, raw = np.asarray(solved[-n:], dtype=np.float64), np.asarray(raw[-n:], dtype=np.float64)
+        seen = np.asarray(valid[-n:], dtype=bool) & np.isfinite(raw).all(axis=2)
+        off = np.linalg.norm(np.where(seen[..., None], solved - raw, 0.0), axis=2) >= CARRY_MIN_M
+        held = (np.asarray(judged[-n:], dtype=bool) & (off | ~seen)).all(axis=0) & np.isfinite(solved[-1]).all(axis=1)
+        solved = solved[-1]
+        row = frame % len(self.shown_frame)
+        if self.shown_frame[row] == frame:
+            own = self.shown[row]
+            apart = np.linalg.norm(solved - own, axis=1)
+            held &= ~(apart < CARRY_MIN_M)  # NaN (the live path had no value): apart
+        p = self.parent
+        rooted = p >= 0
+        base = np.where(rooted[:, None], solved[np.maximum(p, 0)], np.nan)
+        # a joint is placed from its parent (a root, and a joint whose parent the window lacks: not carried)
+        held &= rooted & np.isfinite(base).all(axis=1)
+        self.held = held
+        self.offset = np.where(held[:, None], solved - np.where(np.isfinite(base), base, 0.0), 0.0)
+        self.age = 0
+
+    def apply(self, raw: np.ndarray, valid: np.ndarray, live: np.ndarray, recovered: np.ndarray,
+              frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """The live path's frame ``live`` ``(J, 3)``, number ``frame``, with the carried joints placed
+        from their parents, and ``recovered`` ``(J,)`` with them marked; the frame's raw sample
+        ``raw`` / ``valid`` lets go of joints the sensor agrees with again. Returns the inputs
+        themselves when nothing is carried."""
+        row = frame % len(self.shown_frame)
+        self.shown[row] = live
+        self.shown_frame[row] = frame
+        if not self.held.any():
+            return live, recovered
+        self.age += 1
+        if self.age > self.max_frames:
+            self.reset()
+            return live, recovered
+        out = live.copy()
+        for lv in self.levels:  # parents first: a carried chain follows its carried parent
+            p, c = lv[:, 0], lv[:, 1]
+            m = self.held[c]
+            if m.any():
+                out[c[m]] = out[p[m]] + self.offset[c[m]]
+        seen = np.asarray(valid, dtype=bool) & np.isfinite(raw).all(axis=1)
+        agree = self.held & seen & (np.linalg.norm(np.where(seen[:, None], raw - out, np.inf), axis=1) < CARRY_MIN_M)
+        if agree.any():  # the sensor has the joint again: the live path's own value from here on
+            self.held &= ~agree
+            out[agree] = live[agree]
+        return out, recovered | self.held

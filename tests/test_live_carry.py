@@ -1,0 +1,149 @@
+"""The windows' verdict carried onto the live topic (streamfix.streaming.live_carry)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from streamfix.evaluation.paired import remove_mean_offset
+from streamfix.evaluation.sensor import _rng, ground_truth
+from streamfix.motion import Motion
+from streamfix.sim.sensor_errors import apply_sensor_errors
+from streamfix.skeletons import KINECT_V2
+from streamfix.streaming.config import schedule_config
+from streamfix.streaming.live import tree_levels
+from streamfix.streaming.live_carry import CARRY_MAX_S, CARRY_MIN_M, WindowCarry
+from streamfix.streaming.offline import clean_motion
+
+RATE = 30.0
+# a 4-joint chain 0 -> 1 -> 2 -> 3 along x, 0.3 m bones
+BONES = np.array([[0, 1], [1, 2], [2, 3]])
+POSE = np.array([[0.0, 0, 0], [0.3, 0, 0], [0.6, 0, 0], [0.9, 0, 0]])
+
+
+def _carry() -> WindowCarry:
+    return WindowCarry(tree_levels(BONES, 4), 4, RATE)
+
+
+def _window_end(solved_last: np.ndarray, raw_last: np.ndarray, n: int, judged_joints: list[int]):
+    """The last ``n`` frames of a window that solved ``solved_last`` where the sensor said ``raw_last``."""
+    judged = np.zeros((n, 4), dtype=bool)
+    judged[:, judged_joints] = True
+    return (np.repeat(solved_last[None], n, 0), np.repeat(raw_last[None], n, 0), np.ones((n, 4), dtype=bool), judged)
+
+
+def test_a_joint_the_window_judged_off_is_carried_from_its_parent_and_follows_it():
+    carry = _carry()
+    frozen = POSE.copy()
+    frozen[3] += [0.0, 0.3, 0.0]  # the sensor's hand, frozen 0.3 m off where the window puts it
+    live = frozen.copy()
+    carry.apply(frozen, np.ones(4, dtype=bool), live, np.zeros(4, dtype=bool), 9)
+    carry.take(*_window_end(POSE, frozen, carry.confirm_frames, [3]), frame=9)
+    moved = live + [0.05, 0.0, 0.0]  # the body moved 5 cm; the sensor's hand stayed frozen
+    moved[3] = frozen[3]
+    out, rec = carry.apply(frozen, np.ones(4, dtype=bool), moved, np.zeros(4, dtype=bool), 10)
+    np.testing.assert_allclose(out[3], moved[2] + (POSE[3] - POSE[2]))  # from its parent, as the window had it
+    np.testing.assert_array_equal(out[:3], moved[:3])
+    assert rec.tolist() == [False, False, False, True]
+
+
+def test_a_joint_judged_on_the_last_frame_only_is_not_carried():
+    # an arm flung faster than the window's edge could follow: judged a jump on its newest frame only
+    carry = _carry()
+    raw = POSE.copy()
+    raw[3] += [0.0, 0.2, 0.0]
+    solved, raws, valid, judged = _window_end(POSE, raw, carry.confirm_frames, [])
+    judged[-1, 3] = True
+    carry.take(solved, raws, valid, judged, frame=5)
+    assert not carry.held.any()
+
+
+def test_a_joint_the_window_left_near_the_sensor_or_the_live_path_had_mended_is_not_carried():
+    carry = _carry()
+    near = POSE.copy()
+    near[3] += [0.0, 0.5 * CARRY_MIN_M, 0.0]  # within the sensor's jitter of the window
+    carry.take(*_window_end(POSE, near, carry.confirm_frames, [3]), frame=3)
+    assert not carry.held.any()
+    # far from the sensor, but the live path had already put it where the window does (a gated spike)
+    far = POSE.copy()
+    far[3] += [0.0, 0.4, 0.0]
+    carry.apply(far, np.ones(4, dtype=bool), POSE.copy(), np.zeros(4, dtype=bool), 4)
+    carry.take(*_window_end(POSE, far, carry.confirm_frames, [3]), frame=4)
+    assert not carry.held.any()
+
+
+def test_a_carried_joint_is_let_go_when_the_sensor_agrees_again_or_no_window_renews_it():
+    carry = _carry()
+    frozen = POSE.copy()
+    frozen[3] += [0.0, 0.3, 0.0]
+    valid, none = np.ones(4, dtype=bool), np.zeros(4, dtype=bool)
+    carry.take(*_window_end(POSE, frozen, carry.confirm_frames, [3]), frame=0)
+    out, _ = carry.apply(frozen, valid, frozen, none, 1)
+    assert carry.held[3]
+    # the sensor has the hand again, within CARRY_MIN_M of where it is carried: its own value from now on
+    back = POSE + [0.0, 0.3 * CARRY_MIN_M, 0.0]
+    out, rec = carry.apply(back, valid, back, none, 2)
+    np.testing.assert_array_equal(out, back)
+    assert not carry.held.any() and not rec.any()
+    # a carry no window renews ends after CARRY_MAX_S
+    carry.apply(frozen, valid, frozen, none, 3)  # frozen again, and the live path shows it so
+    carry.take(*_window_end(POSE, frozen, carry.confirm_frames, [3]), frame=3)
+    held = [carry.apply(frozen, valid, frozen, none, 4 + i)[1][3] for i in range(int(CARRY_MAX_S * RATE) + 2)]
+    assert all(held[:int(CARRY_MAX_S * RATE)]) and not held[-1]
+
+
+def test_a_lost_joint_is_carried_from_the_window_and_a_root_never_is():
+    carry = _carry()
+    raw = POSE.copy()
+    raw[2:] = np.nan  # the sensor lost the forearm and hand
+    solved = POSE + [0.1, 0.0, 0.0]  # the window also moved the root
+    solved_n, raws, valid, judged = _window_end(solved, raw, carry.confirm_frames, [0, 2, 3])
+    valid[:, 2:] = False
+    carry.take(solved_n, raws, valid, judged, frame=7)
+    assert carry.held.tolist() == [False, False, True, True]
+
+
+@pytest.fixture(scope="module")
+def take_131(shared_data):
+    return ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", RATE)
+
+
+@pytest.mark.parametrize("kind", ["freeze", "swap", "dropout"])
+def test_the_live_topic_mends_what_the_windows_found(take_131, kind):
+    """CMU 131_01 at 30 Hz with the sensor protocol's errors of one kind: the live topic's error on
+    the corrupted joint-frames falls well below what the live path alone makes of them, and the
+    untouched joint-frames move little."""
+    truth = take_131.positions
+    c = apply_sensor_errors(truth, _rng(0, kind, "131_01.bvh"), [kind], rate_hz=RATE, min_events=1)
+    m = Motion(c.positions, c.confidence, np.arange(len(truth)) / RATE, RATE, KINECT_V2)
+    errors = {}
+    for carry in (False, True):
+        cfg = dataclasses.replace(schedule_config("serve", RATE), live_carry=carry)
+        live = clean_motion(m, cfg, topic="live")[0].positions
+        e = np.linalg.norm(live - truth, axis=2)
+        errors[carry] = (np.nanmean(e[c.corrupted]), np.nanmean(e[~c.corrupted]))
+    (bad_off, good_off), (bad_on, good_on) = errors[False], errors[True]
+    assert bad_on < 0.8 * bad_off, errors
+    assert good_on < good_off + 0.002, errors  # collateral: within 2 mm
+
+
+def test_the_live_topic_on_real_kinect_v1_legs_gets_closer_to_vicon(shared_data):
+    """UI-PRMD (Kinect v1 + Vicon), every 60th repetition: the sensor loses and folds the legs in
+    squats, lunges and sit-to-stand, and the carried window verdict brings the live topic's lower
+    body (debiased error, pooled) well closer to the optical reference."""
+    from streamfix.evaluation.paired import region_masks
+    from streamfix.io.paired import find_takes, load_take
+
+    refs = [r for r in find_takes(shared_data / "paired", subset="trustworthy") if r.dataset == "uiprmd"][::60]
+    sums = {False: 0.0, True: 0.0}
+    for ref in refs:
+        take = load_take(ref)
+        m = take.sensor
+        lower = region_masks(m.skeleton.joint_names)["lower"] & take.referenced
+        for carry in (False, True):
+            cfg = dataclasses.replace(schedule_config("serve", m.rate_hz), live_carry=carry)
+            y = clean_motion(m, cfg, topic="live")[0].positions
+            deb = np.linalg.norm(remove_mean_offset(y, take.reference) - take.reference, axis=2)
+            sums[carry] += float(np.nansum(deb[:, lower]))
+    assert sums[True] < 0.85 * sums[False], sums
