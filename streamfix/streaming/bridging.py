@@ -614,6 +614,7 @@ class BridgingWindowSolver:
         state, released_before = split_state(state)
         plant_weight = None  # foot support's correction weight (T, J), when it planted a leg
         swapped = None  # (T, J) samples relabelled from their left/right twin
+        along_ray = None  # (T, J) depths thrown along the camera ray, moved back
         if self.undo_swaps and skeleton is not None:
             # left/right limbs the sensor exchanged for a few frames (streaming/swaps.py)
             from .swaps import unswap_window
@@ -698,9 +699,12 @@ class BridgingWindowSolver:
                 dropped = jumped if released is None else (released | jumped)
         res = self._solve(x, conf, obs, bones, bone_lengths, rate_hz, config, state, init, history,
                           None if skeleton is None else skeleton.name, released)
-        judged = swapped if replaced is None else (replaced if swapped is None else replaced | swapped)
+        # the live topic carries these (streaming/live_carry.py); a depth thrown along its ray it
+        # repairs itself, frame by frame, where a window's pose would be a hop old
+        judged = replaced if along_ray is None or replaced is None else replaced & ~along_ray
+        judged = swapped if judged is None else (judged if swapped is None else judged | swapped)
         if judged is not None and judged.any():
-            res.info[JUDGED_KEY] = judged  # the live topic carries these (streaming/live_carry.py)
+            res.info[JUDGED_KEY] = judged
         if replaced is None:
             return res
         res = _with_recovered(res, replaced)

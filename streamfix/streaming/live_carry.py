@@ -6,13 +6,14 @@ with its mirror or lost for a second from a limb that really is there; the windo
 second later. Every solved window ends at the newest frame it was given, so its last frame is
 its best guess of *now*. Where the window's real-sensor stages judged a joint's newest samples
 wrong (:data:`~streamfix.streaming.solver_api.JUDGED_KEY`: frozen, swapped, jumped, dislocated,
-folded, thrown along its ray) or the sensor has none, and the window puts the joint far from the
-sample, the live topic takes the window's pose of that joint, as an offset from
-its parent in the skeleton tree, and keeps it while the stream goes on: each carried joint is
-placed at ``parent + (solved_j - solved_parent)``, parents first, so a carried limb moves with the
-body that carries it. A carried joint is let go when the next window no longer finds it off,
-when the sensor's own sample comes back within :data:`CARRY_MIN_M` of it (a swap ended, a
-frozen limb moves again), or after :data:`CARRY_MAX_S` without a window renewing it.
+folded) or the sensor has none, and the window puts the joint far from the sample, the live
+topic takes the window's pose of that joint, as an offset from its parent in the skeleton tree,
+and keeps it while the stream goes on: each carried joint is placed at
+``parent + (solved_j - solved_parent)``, parents first, so a carried limb moves with the body
+that carries it. A carried joint is let go when the next window no longer finds it off, when
+the sensor's own sample comes back within :data:`CARRY_MIN_M` of it (a swap ended, a frozen
+limb moves again), or after :data:`CARRY_MAX_S` without a window renewing it; taking and letting
+go crossfade over :data:`CROSSFADE_S`.
 
 Pure arrays in, arrays out (metres, seconds). The engine feeds it
 (:class:`~streamfix.streaming.engine.StreamEngine`, ``EngineConfig.live_carry``).
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["WindowCarry", "CARRY_MIN_M", "CARRY_MAX_S"]
+__all__ = ["WindowCarry", "CARRY_MIN_M", "CARRY_MAX_S", "CONFIRM_S", "CROSSFADE_S"]
 
 CARRY_MIN_M = 0.08
 """A window's newest frame must place a joint this far (m) from the sensor's sample of that
@@ -31,6 +32,9 @@ CONFIRM_S = 0.1
 """... on each of the window's newest frames this long (s): a verdict on a window's last frame
 or two is its least sure. On KERAAL an arm the sensor had right, flung up 19 cm in one frame,
 was an outlier of the window's last two frames only, and holding it there left it 0.7 m behind."""
+CROSSFADE_S = 0.1
+"""A joint taken or let go moves between the live path's value and the carried one over this
+long (s), linearly: a window's verdict arrives all at once, every hop."""
 CARRY_MAX_S = 0.5
 """How long (s) a carried joint is held without a newer window saying it is still off: a
 window comes every hop (1/3 s on serve's schedule); one that was skipped or failed must not
@@ -51,16 +55,19 @@ class WindowCarry:
             self.parent[lv[:, 1]] = lv[:, 0]
         self.max_frames = max(int(round(CARRY_MAX_S * float(rate_hz))), 1)
         self.confirm_frames = max(int(round(CONFIRM_S * float(rate_hz))), 1)
+        self.fade_frames = max(int(round(CROSSFADE_S * float(rate_hz))), 1)
         # the live path's own output of the recent frames (before any carry), by frame number
         self.shown = np.full((self.max_frames + 1, n_joints, 3), np.nan)
         self.shown_frame = np.full(self.max_frames + 1, -1, dtype=np.int64)
         self.reset()
 
     def reset(self) -> None:
-        """Carry nothing."""
+        """Carry nothing, at once."""
         n = len(self.parent)
-        self.held = np.zeros(n, dtype=bool)
-        self.offset = np.zeros((n, 3))
+        self.held = np.zeros(n, dtype=bool)  # joints carried now (their crossfade rises)
+        self.level = np.zeros(n, dtype=np.int64)  # frames into each joint's crossfade: its share of
+        # the carried pose in the output is level / fade_frames
+        self.offset = np.zeros((n, 3))  # from the parent, m (kept while a let-go joint fades out)
         self.age = 0
 
     def take(self, solved: np.ndarray, raw: np.ndarray, valid: np.ndarray, judged: np.ndarray, frame: int) -> None:
@@ -89,33 +96,34 @@ class WindowCarry:
         # a joint is placed from its parent (a root, and a joint whose parent the window lacks: not carried)
         held &= rooted & np.isfinite(base).all(axis=1)
         self.held = held
-        self.offset = np.where(held[:, None], solved - np.where(np.isfinite(base), base, 0.0), 0.0)
+        self.offset = np.where(held[:, None], solved - np.where(np.isfinite(base), base, 0.0), self.offset)
         self.age = 0
 
     def apply(self, raw: np.ndarray, valid: np.ndarray, live: np.ndarray, recovered: np.ndarray,
               frame: int) -> tuple[np.ndarray, np.ndarray]:
         """The live path's frame ``live`` ``(J, 3)``, number ``frame``, with the carried joints placed
         from their parents, and ``recovered`` ``(J,)`` with them marked; the frame's raw sample
-        ``raw`` / ``valid`` lets go of joints the sensor agrees with again. Returns the inputs
-        themselves when nothing is carried."""
+        ``raw`` / ``valid`` lets go of joints the sensor agrees with again. A joint taken or let go
+        crossfades over :data:`CROSSFADE_S` (a limb does not jump on the topic when a window's
+        verdict arrives). Returns the inputs themselves when nothing is carried."""
         row = frame % len(self.shown_frame)
         self.shown[row] = live
         self.shown_frame[row] = frame
-        if not self.held.any():
+        if not self.level.any() and not self.held.any():
             return live, recovered
         self.age += 1
-        if self.age > self.max_frames:
-            self.reset()
-            return live, recovered
-        out = live.copy()
+        if self.age > self.max_frames:  # no window renewed the carry: let go
+            self.held[:] = False
+        carried = live.copy()
         for lv in self.levels:  # parents first: a carried chain follows its carried parent
             p, c = lv[:, 0], lv[:, 1]
-            m = self.held[c]
+            m = self.held[c] | (self.level[c] > 0)
             if m.any():
-                out[c[m]] = out[p[m]] + self.offset[c[m]]
+                carried[c[m]] = carried[p[m]] + self.offset[c[m]]
         seen = np.asarray(valid, dtype=bool) & np.isfinite(raw).all(axis=1)
-        agree = self.held & seen & (np.linalg.norm(np.where(seen[:, None], raw - out, np.inf), axis=1) < CARRY_MIN_M)
-        if agree.any():  # the sensor has the joint again: the live path's own value from here on
-            self.held &= ~agree
-            out[agree] = live[agree]
-        return out, recovered | self.held
+        near = np.linalg.norm(np.where(seen[:, None], raw - carried, np.inf), axis=1) < CARRY_MIN_M
+        self.held &= ~(seen & near)  # the sensor has the joint again: the live path's own value from here on
+        self.level = np.clip(self.level + np.where(self.held, 1, -1), 0, self.fade_frames)
+        w = (self.level / self.fade_frames)[:, None]
+        out = np.where(w > 0, live + w * (carried - live), live)
+        return out, recovered | (self.level > 0)

@@ -24,11 +24,12 @@ measurements; the engine drops what those blended there
 
 JUDGED_KEY = "judged"
 """Key of a window solver's ``info``: ``(T, J)`` bool, the samples its real-sensor stages judged
-wrong: replaced (a frozen or jumped limb, a dislocated end, a folded leg, a depth thrown along its
-ray, an inferred limb the body contradicts) or relabelled from their left/right twin (a swap,
-which stays observed, not ``recovered``). Not the solver's own outliers, which include a limb
-that merely moved faster than the window's edge could follow. The engine's live topic carries
-the window's verdict on these (:mod:`streamfix.streaming.live_carry`)."""
+wrong: replaced (a frozen or jumped limb, a dislocated end, a folded leg, an inferred limb the
+body contradicts) or relabelled from their left/right twin (a swap, which stays observed, not
+``recovered``). Not a depth thrown along its camera ray, which the live path repairs itself
+frame by frame, nor the solver's own outliers, which include a limb that merely moved faster
+than the window's edge could follow. The engine's live topic carries the window's verdict on
+these (:mod:`streamfix.streaming.live_carry`)."""
 
 WindowSolver = Callable[..., Any]
 """``solver(positions (T,J,3), confidence (T,J), bones (B,2), bone_lengths (B,)|None,
