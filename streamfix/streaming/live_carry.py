@@ -51,8 +51,10 @@ class WindowCarry:
     def __init__(self, levels: list[np.ndarray], n_joints: int, rate_hz: float) -> None:
         self.levels = [np.asarray(lv, dtype=np.intp) for lv in levels]
         self.parent = np.full(n_joints, -1, dtype=np.intp)
-        for lv in self.levels:
+        self.depth = np.zeros(n_joints, dtype=np.intp)  # in the tree: parents before their children
+        for d, lv in enumerate(self.levels, start=1):
             self.parent[lv[:, 1]] = lv[:, 0]
+            self.depth[lv[:, 1]] = d
         self.max_frames = max(int(round(CARRY_MAX_S * float(rate_hz))), 1)
         self.confirm_frames = max(int(round(CONFIRM_S * float(rate_hz))), 1)
         self.fade_frames = max(int(round(CROSSFADE_S * float(rate_hz))), 1)
@@ -114,16 +116,21 @@ class WindowCarry:
         self.age += 1
         if self.age > self.max_frames:  # no window renewed the carry: let go
             self.held[:] = False
+        # the few joints carried or fading, parents first (a carried chain follows its carried parent)
+        active = np.flatnonzero(self.held | (self.level > 0))
+        active = active[np.argsort(self.depth[active], kind="stable")]
         carried = live.copy()
-        for lv in self.levels:  # parents first: a carried chain follows its carried parent
-            p, c = lv[:, 0], lv[:, 1]
-            m = self.held[c] | (self.level[c] > 0)
-            if m.any():
-                carried[c[m]] = carried[p[m]] + self.offset[c[m]]
-        seen = np.asarray(valid, dtype=bool) & np.isfinite(raw).all(axis=1)
-        near = np.linalg.norm(np.where(seen[:, None], raw - carried, np.inf), axis=1) < CARRY_MIN_M
-        self.held &= ~(seen & near)  # the sensor has the joint again: the live path's own value from here on
-        self.level = np.clip(self.level + np.where(self.held, 1, -1), 0, self.fade_frames)
-        w = (self.level / self.fade_frames)[:, None]
-        out = np.where(w > 0, live + w * (carried - live), live)
-        return out, recovered | (self.level > 0)
+        for c in active.tolist():
+            carried[c] = carried[self.parent[c]] + self.offset[c]
+        raw_a = raw[active]
+        seen = np.asarray(valid, dtype=bool)[active] & np.isfinite(raw_a).all(axis=1)
+        near = np.linalg.norm(np.where(seen[:, None], raw_a - carried[active], np.inf), axis=1) < CARRY_MIN_M
+        held = self.held[active] & ~(seen & near)  # the sensor has the joint again: its own value from here on
+        self.held[active] = held
+        level = np.clip(self.level[active] + np.where(held, 1, -1), 0, self.fade_frames)
+        self.level[active] = level
+        out = live.copy()
+        out[active] = live[active] + (level / self.fade_frames)[:, None] * (carried[active] - live[active])
+        rec = recovered.copy()
+        rec[active] |= level > 0
+        return out, rec
