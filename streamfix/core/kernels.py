@@ -32,6 +32,9 @@ into a single compiled loop over frames and channels:
 * :func:`live_step`: one whole frame of the live path's default chain (that gate with its
   rigid release, the One Euro filter, the bone projection) in one call, bit for bit: the
   per-frame path is dozens of tiny numpy calls per body, and their overhead was most of its cost;
+* :func:`live_carry`: the windows' verdict carried onto one live frame
+  (:meth:`streamfix.streaming.live_carry.WindowCarry.apply`), bit for bit: a dozen small numpy
+  calls per frame whenever a joint is carried, which is whenever the sensor has lost one;
 * :func:`live_pose_bias`: the learned sensor bias removed from one frame
   (:func:`streamfix.core.pose_bias.remove_pose_bias` on one frame, rounding apart): the
   numpy batch function took most of a millisecond there.
@@ -58,7 +61,7 @@ __all__ = [
     "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
     "shorth_mode", "length_mode_with_support", "live_step", "kabsch_rotations", "warm_up",
-    "live_pose_bias",
+    "live_pose_bias", "live_carry",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -1109,6 +1112,58 @@ def live_step(
     return y, outlier, int(n)
 
 
+def _live_carry_loop(live, raw, valid, held, level, offset, parent, order, fade_frames, min_m, out, rec):  # pragma: no cover - compiled
+    J = live.shape[0]
+    carried = live.copy()
+    for k in range(J):
+        c = order[k]
+        for a in range(3):
+            out[c, a] = live[c, a]
+        if not held[c] and level[c] == 0:
+            continue
+        p = parent[c]
+        for a in range(3):
+            carried[c, a] = carried[p, a] + offset[c, a]
+        if valid[c] and np.isfinite(raw[c, 0]) and np.isfinite(raw[c, 1]) and np.isfinite(raw[c, 2]):
+            d0 = raw[c, 0] - carried[c, 0]
+            d1 = raw[c, 1] - carried[c, 1]
+            d2 = raw[c, 2] - carried[c, 2]
+            if np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) < min_m:
+                held[c] = False
+        lv = level[c] + (1 if held[c] else -1)
+        lv = min(max(lv, 0), fade_frames)
+        level[c] = lv
+        w = lv / fade_frames
+        for a in range(3):
+            out[c, a] = live[c, a] + w * (carried[c, a] - live[c, a])
+        if lv > 0:
+            rec[c] = True
+
+
+_live_carry_compiled = _jit(_live_carry_loop)
+
+
+def live_carry(live: np.ndarray, raw: np.ndarray, valid: np.ndarray, recovered: np.ndarray, held: np.ndarray,
+               level: np.ndarray, offset: np.ndarray, parent: np.ndarray, order: np.ndarray, fade_frames: int,
+               min_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """One live frame with the windows' verdict carried on, compiled: the body of
+    :meth:`streamfix.streaming.live_carry.WindowCarry.apply` after its bookkeeping, bit for bit.
+
+    ``live`` ``(J, 3)`` m the live path's frame, ``raw`` ``(J, 3)`` / ``valid`` ``(J,)`` the
+    sensor's; ``held`` ``(J,)`` bool and ``level`` ``(J,)`` int64, the carry's state, updated in
+    place; ``offset`` ``(J, 3)`` m from each joint's ``parent`` ``(J,)``; ``order`` ``(J,)`` every
+    joint, parents first. Returns ``(positions (J, 3), recovered (J,))``. Needs numba.
+    """
+    if _live_carry_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.live_carry needs numba; use WindowCarry.apply's numpy path")
+    out = np.empty_like(live, dtype=np.float64)
+    rec = np.array(recovered, dtype=np.bool_)
+    _live_carry_compiled(np.ascontiguousarray(live, dtype=np.float64), np.ascontiguousarray(raw, dtype=np.float64),
+                         np.ascontiguousarray(valid, dtype=np.bool_), held, level, offset, parent, order,
+                         int(fade_frames), float(min_m), out, rec)
+    return out, rec
+
+
 # --------------------------------------------------------------------------- bone spread
 def _select_inplace(a, n, k):  # pragma: no cover - compiled
     """The k-th smallest of ``a[:n]`` (no NaN), partially reordering ``a[:n]`` in place so
@@ -1520,3 +1575,5 @@ def warm_up() -> None:
                 np.zeros((2, 6)), 1.0, 2.0, np.ones(1), np.ones((3, 1)), idx(0, 1), idx(1, 2), np.full((2, 1), 0.25),
                 np.full((2, 1), 0.25), 2, 0.5)
     live_pose_bias(finite[0] + 1.0, prepared, None)
+    live_carry(finite[0], finite[0], np.ones(3, dtype=bool), np.zeros(3, dtype=bool), np.array([False, True, False]),
+               np.zeros(3, dtype=np.int64), np.zeros((3, 3)), idx(-1, 0, 1), idx(0, 1, 2), 3, 0.08)

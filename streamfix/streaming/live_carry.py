@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core import kernels
+
 __all__ = ["WindowCarry", "CARRY_MIN_M", "CARRY_MAX_S", "CONFIRM_S", "CROSSFADE_S"]
 
 CARRY_MIN_M = 0.08
@@ -55,6 +57,7 @@ class WindowCarry:
         for d, lv in enumerate(self.levels, start=1):
             self.parent[lv[:, 1]] = lv[:, 0]
             self.depth[lv[:, 1]] = d
+        self.order = np.ascontiguousarray(np.argsort(self.depth, kind="stable"), dtype=np.intp)  # parents first
         self.max_frames = max(int(round(CARRY_MAX_S * float(rate_hz))), 1)
         self.confirm_frames = max(int(round(CONFIRM_S * float(rate_hz))), 1)
         self.fade_frames = max(int(round(CROSSFADE_S * float(rate_hz))), 1)
@@ -116,6 +119,9 @@ class WindowCarry:
         self.age += 1
         if self.age > self.max_frames:  # no window renewed the carry: let go
             self.held[:] = False
+        if kernels.COMPILED:  # the same values in one compiled call
+            return kernels.live_carry(live, raw, valid, recovered, self.held, self.level, self.offset, self.parent,
+                                      self.order, self.fade_frames, CARRY_MIN_M)
         # the few joints carried or fading, parents first (a carried chain follows its carried parent)
         active = np.flatnonzero(self.held | (self.level > 0))
         active = active[np.argsort(self.depth[active], kind="stable")]
