@@ -51,10 +51,10 @@ class WindowCarry:
     """
 
     def __init__(self, levels: list[np.ndarray], n_joints: int, rate_hz: float) -> None:
-        self.levels = [np.asarray(lv, dtype=np.intp) for lv in levels]
         self.parent = np.full(n_joints, -1, dtype=np.intp)
         self.depth = np.zeros(n_joints, dtype=np.intp)  # in the tree: parents before their children
-        for d, lv in enumerate(self.levels, start=1):
+        for d, lv in enumerate(levels, start=1):
+            lv = np.asarray(lv, dtype=np.intp)
             self.parent[lv[:, 1]] = lv[:, 0]
             self.depth[lv[:, 1]] = d
         self.order = np.ascontiguousarray(np.argsort(self.depth, kind="stable"), dtype=np.intp)  # parents first
@@ -79,11 +79,10 @@ class WindowCarry:
         """A window's newest frames: its solution ``solved`` ``(n, J, 3)`` m, the raw samples ``raw``
         ``(n, J, 3)`` and ``valid`` ``(n, J)`` of those frames, and ``judged`` ``(n, J)``, the
         samples the window's stages judged wrong or the sensor did not give; ``frame`` the number
-        of the last of them. Carry
-        the joints the window judged on each of its last :data:`CONFIRM_S` worth of frames and
-        placed :data:`CARRY_MIN_M` or more from the sample (or gave a value where there is none),
-        and as far from what the live path itself made of the last frame (a joint the live path
-        already mended, a spike it gated or a depth it repaired, is left to it)."""
+        of the last of them. Carry the joints the window judged on each of its last
+        :data:`CONFIRM_S` worth of frames and placed :data:`CARRY_MIN_M` or more from the sample
+        (or gave a value where there is none), and as far from what the live path itself made of
+        the last frame (a joint the live path already mended, a spike it gated, is left to it)."""
         n = min(self.confirm_frames, len(solved))
         solved, raw = np.asarray(solved[-n:], dtype=np.float64), np.asarray(raw[-n:], dtype=np.float64)
         seen = np.asarray(valid[-n:], dtype=bool) & np.isfinite(raw).all(axis=2)
