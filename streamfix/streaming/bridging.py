@@ -701,9 +701,14 @@ class BridgingWindowSolver:
                           None if skeleton is None else skeleton.name, released)
         # the live topic carries these (streaming/live_carry.py); a depth thrown along its ray it
         # repairs itself, frame by frame, where a window's pose would be a hop old
-        judged = replaced if along_ray is None or replaced is None else replaced & ~along_ray
-        judged = swapped if judged is None else (judged if swapped is None else judged | swapped)
-        if judged is not None and judged.any():
+        judged = np.zeros(x.shape[:2], dtype=bool)
+        if replaced is not None:
+            judged |= replaced
+        if along_ray is not None:
+            judged &= ~along_ray
+        if swapped is not None:
+            judged |= swapped
+        if judged.any():
             res.info[JUDGED_KEY] = judged
         if replaced is None:
             return res
