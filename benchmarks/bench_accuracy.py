@@ -41,11 +41,10 @@ sys.path.insert(0, str(ROOT))
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 
 from streamfix.cli.evaluate import print_table  # noqa: E402
-from streamfix.evaluation.kinect import run_kinect  # noqa: E402
+from streamfix.evaluation.kinect import TRACKED_MOVE_BAR, run_kinect  # noqa: E402
 from streamfix.evaluation.noise_gaps import run_gaps, run_noise  # noqa: E402
 
 TABLE_II = {5: 0.004, 10: 0.006, 15: 0.007, 20: 0.010, 80: 0.040}
-TRACKED_SHIFT_MAX = 1.5  # issue 8: x median_savgol's mean move of tracked joint-frames
 BONE_CV_MAX = 0.1  # issue 8: x the input's bone-length CV
 INFERRED_ASYMMETRY_MAX = 0.05  # issue 8: inferred limb's bone vs its mirror, fraction
 BASELINES = ["input", "yang", "li", "wang", "one_euro", "holt", "savgol", "median_savgol", "linear", "spline"]
@@ -142,14 +141,14 @@ def _main(tee: _Tee) -> int:
               f"{ms['jitter_ratio']:.3f})  bone CV after/before {sf['bone_cv_ratio']:.3f} (yang {ya['bone_cv_ratio']:.3f})")
         # issue 8, real Kinect CSVs: tracked joints barely moved, bones steady, inferred limbs symmetric
         moved = sf["tracked_shift_m"] / ms["tracked_shift_m"] if ms["tracked_shift_m"] else float("inf")
-        check(moved <= TRACKED_SHIFT_MAX, f"{Path(f).name}: tracked joints moved {moved:.2f}x median_savgol's "
-                                          f"(bar {TRACKED_SHIFT_MAX})")
+        check(moved <= TRACKED_MOVE_BAR, f"{Path(f).name}: tracked joints moved {moved:.2f}x median_savgol's "
+                                          f"(bar {TRACKED_MOVE_BAR})")
         check(sf["bone_cv_ratio"] <= BONE_CV_MAX, f"{Path(f).name}: bone CV ratio {sf['bone_cv_ratio']:.3f} > {BONE_CV_MAX}")
         asym = sf.get("inferred_asymmetry")
         if asym is not None:
             check(asym <= INFERRED_ASYMMETRY_MAX,
                   f"{Path(f).name}: an inferred limb's bone is {100 * asym:.1f} % off its mirror (bar {100 * INFERRED_ASYMMETRY_MAX:.0f} %)")
-        print(f"  {'':<26} tracked joints moved {moved:.2f}x median_savgol's (bar {TRACKED_SHIFT_MAX})  bone CV "
+        print(f"  {'':<26} tracked joints moved {moved:.2f}x median_savgol's (bar {TRACKED_MOVE_BAR})  bone CV "
               f"after/before {sf['bone_cv_ratio']:.3f} (bar {BONE_CV_MAX})  inferred limb vs mirror "
               + ("-" if asym is None else f"{100 * asym:.1f} %") + f" (bar {100 * INFERRED_ASYMMETRY_MAX:.0f} %)")
         if ms["tracked_shift_m"]:  # what the geometry asks of any method (streamfix.core.rigid_bound)

@@ -135,3 +135,17 @@ def test_bone_cv_leaves_out_zero_length_links(shared_data):
     cv = metrics.bone_length_cv(m.positions, bones)
     assert cv == pytest.approx(metrics.bone_length_cv(m.positions, bones[long])) and cv < 1e-3
     assert np.isnan(metrics.bone_length_cv(m.positions, bones[~long]))
+
+
+def test_mean_move_counts_only_the_given_finite_joint_frames():
+    data = np.zeros((3, 2, 3))
+    out = data.copy()
+    out[:, 0, 0] = 0.01  # joint 0 moved 1 cm in every frame
+    out[1, 1, 2] = 0.05  # joint 1 moved 5 cm in one frame
+    counted = np.ones((3, 2), dtype=bool)
+    assert metrics.mean_move(out, data, counted) == pytest.approx((3 * 0.01 + 0.05) / 6)
+    counted[:, 1] = False
+    assert metrics.mean_move(out, data, counted) == pytest.approx(0.01)
+    data[0, 0] = np.nan  # a missing input sample is no move
+    assert metrics.mean_move(out, data, counted) == pytest.approx(0.01)
+    assert np.isnan(metrics.mean_move(out, data, np.zeros((3, 2), dtype=bool)))

@@ -142,3 +142,21 @@ def test_handover_frames_are_where_the_engine_blend_passes_to_a_newer_window(met
     got = handover_frames(T, 30.0, method)
     assert len(switch) >= 4
     assert np.array_equal(got[:n_last - 1], expected[:n_last - 1])
+
+
+def test_move_scaled_to_the_bar_shrinks_only_the_tracked_move():
+    from streamfix.core.metrics import mean_move
+    from streamfix.evaluation.paired import move_scaled_to
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(40, 4, 3))
+    y = x + rng.normal(scale=0.02, size=x.shape)
+    tracked = np.ones((40, 4), dtype=bool)
+    tracked[:, 3] = False  # an untracked joint keeps the output's value
+    now = mean_move(y, x, tracked)
+    capped, a = move_scaled_to(y, x, tracked, 0.5 * now)
+    assert a == pytest.approx(0.5) and mean_move(capped, x, tracked) == pytest.approx(0.5 * now)
+    np.testing.assert_allclose(capped[:, 3], y[:, 3])
+    np.testing.assert_allclose(capped[:, :3], x[:, :3] + 0.5 * (y[:, :3] - x[:, :3]))
+    same, a = move_scaled_to(y, x, tracked, 2 * now)  # already within: unchanged
+    assert a == 1.0 and same is y

@@ -49,6 +49,14 @@ def test_cli_json_on_a_few_repetitions(capsys):
         # the sensor's error is mostly slow, and a smoother leaves its slow part where it was
         assert 0.5 * raw["debiased_mean_m"] < raw["debiased_slow_m"] < raw["debiased_mean_m"]
         assert ms["debiased_slow_m"] == pytest.approx(raw["debiased_slow_m"], rel=0.05)
+        # the move of the sensor's joints: none for the input, some for a smoother; the engine's output
+        # is also scored with its move scaled down to the real-Kinect bar (never above that bar after)
+        assert raw["move_m"] == 0.0 and 0.0 < ms["move_m"] < 0.05
+        sf = by[(d, "streamfix", "all")]
+        assert 0.0 < sf["move_bar_scale"] <= 1.0 and math.isfinite(sf["debiased_at_move_bar_m"])
+        if d == "keraal":  # one take: its scaled move is exactly the bar's (or its own, when within it)
+            assert sf["move_m"] * sf["move_bar_scale"] == pytest.approx(min(sf["move_m"], 1.5 * ms["move_m"]))
+        assert raw["debiased_at_move_bar_m"] is None and ms["debiased_at_move_bar_m"] is None
 
 
 def test_cli_table_and_directory_argument(shared_data, capsys):

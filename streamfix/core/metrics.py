@@ -130,6 +130,15 @@ def inferred_bone_asymmetry(
     return float(rel.max()) if rel.size else float("nan")
 
 
+def mean_move(output: np.ndarray, data: np.ndarray, counted: np.ndarray) -> float:
+    """Mean ``|output - data|`` (m) over the ``counted`` ``(T, J)`` joint-frames where both are finite;
+    NaN when there are none. Why: how far a method moved the samples it was given (issue 8's
+    "tracked joints moved" on real Kinect files, and the same on the paired recordings)."""
+    d = np.linalg.norm(np.asarray(output, dtype=np.float64) - np.asarray(data, dtype=np.float64), axis=-1)
+    ok = np.asarray(counted, dtype=bool) & np.isfinite(d)
+    return float(d[ok].mean()) if ok.any() else float("nan")
+
+
 def gap_mae(pred: np.ndarray, truth: np.ndarray, missing: np.ndarray) -> float:
     """Mean joint error (m) over the joint-frames flagged in ``missing`` ``(T, J)`` only."""
     err = joint_errors(pred, truth)
