@@ -51,8 +51,10 @@ def test_a_window_with_short_gaps_only_skips_the_solver(shared_data):
     res = clean_window(x, None, skel.bone_array, None, 30.0)
     assert res.iterations == 0 and res.info.get("short_gaps_only")
     assert np.linalg.norm(res.positions - gt, axis=2)[missing].mean() < 0.02
+    # the solver path still exists (and has the spline for blackouts): a joint lost in a seen frame needs it
+    x[20, 3] = np.nan
     solved = clean_window(x, None, skel.bone_array, None, 30.0, PipelineConfig(short_gap_s=0.0, time_gap_s=None))
-    assert solved.iterations > 0  # the solver path still exists (and has the spline for blackouts)
+    assert solved.iterations > 0
     assert np.linalg.norm(solved.positions - gt, axis=2)[missing].mean() < 0.05
 
 
@@ -103,3 +105,25 @@ def test_a_forearm_lost_for_four_frames_of_a_fast_swing_is_filled_in_time(shared
     assert timed < 0.06 and solved > 5 * timed  # measured 37 vs 509 mm
     for method in ("streamfix", "streamfix_serve"):
         assert error(run_method(method, x, conf, KINECT_V2.bone_array, 30.0, skeleton=KINECT_V2)) < 0.06
+
+
+def test_a_dropped_frame_at_the_window_edge_is_filled_in_time_without_a_solve(shared_data, monkeypatch):
+    """A frame the sensor dropped at a window's first or last frame is not a short closed gap,
+    but it is a blackout: the spline through the window fills it, and a solve's values there
+    would be thrown away. Only a missing sample in a frame with other joints seen needs the solver."""
+    import streamfix.core.alm as alm
+
+    gt, skel = _dance(shared_data, 60)
+    calls = []
+    real_solve = alm.solve
+    monkeypatch.setattr(alm, "solve", lambda *a, **k: calls.append(1) or real_solve(*a, **k))
+    for edge in (0, 59):
+        x = gt.copy()
+        x[edge] = np.nan
+        res = clean_window(x, None, skel.bone_array, None, 30.0)
+        assert not calls and res.iterations == 0 and res.info.get("blackouts_only"), edge
+        assert res.info["blackout_frames"] == 1 and res.recovered[edge].all()
+        assert np.linalg.norm(res.positions[edge] - gt[edge], axis=1).mean() < 0.05, edge
+    x[30, 3] = np.nan  # one joint lost in a frame where the others are seen: the solver's
+    res = clean_window(x, None, skel.bone_array, None, 30.0)
+    assert calls and res.iterations > 0 and not res.info.get("blackouts_only")

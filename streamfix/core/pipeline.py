@@ -486,10 +486,19 @@ def clean_window(
         # short and closed: a joint that has just vanished at the window's newest frames is
         # the solver's (the other joints say where it went; its neighbours in time do not)
         closed = obs[0].all() and obs[-1].all()
+        seen_frames = obs.any(axis=1)
         if cfg.use_solver and closed and missing_run_lengths(obs).max() <= short:
             filled = fill_short_gaps(cleaned, obs, short)
             info["short_gaps_only"] = True
             out_state = state  # the solver did not run: its warm start carries on to the next window
+        elif cfg.use_solver and seen_frames.any() and not (missing & seen_frames[:, None]).any():
+            # every missing sample is in a frame with no joint observed (a dropped frame at the
+            # window's edge, where the short-gap path does not reach): the blackout spline below
+            # replaces all of them, so a solve's values would be thrown away (it cost 15 % of a
+            # Kinect file's cleaning, two 600-frame solves for one dropped first frame each)
+            filled = cleaned.copy()
+            info["blackouts_only"] = True
+            out_state = state
         elif cfg.use_solver:
             # closed gaps up to time_gap_s: each joint's cubic spline (core.window_gaps), which
             # the solver takes as data; the solver fills the rest
