@@ -486,19 +486,10 @@ def clean_window(
         # short and closed: a joint that has just vanished at the window's newest frames is
         # the solver's (the other joints say where it went; its neighbours in time do not)
         closed = obs[0].all() and obs[-1].all()
-        seen_frames = obs.any(axis=1)
         if cfg.use_solver and closed and missing_run_lengths(obs).max() <= short:
             filled = fill_short_gaps(cleaned, obs, short)
             info["short_gaps_only"] = True
             out_state = state  # the solver did not run: its warm start carries on to the next window
-        elif cfg.use_solver and seen_frames.any() and not (missing & seen_frames[:, None]).any():
-            # every missing sample is in a frame with no joint observed (a dropped frame at the
-            # window's edge, where the short-gap path does not reach): the blackout spline below
-            # replaces all of them, so a solve's values would be thrown away (it cost 15 % of a
-            # Kinect file's cleaning, two 600-frame solves for one dropped first frame each)
-            filled = cleaned.copy()
-            info["blackouts_only"] = True
-            out_state = state
         elif cfg.use_solver:
             # closed gaps up to time_gap_s: each joint's cubic spline (core.window_gaps), which
             # the solver takes as data; the solver fills the rest
@@ -506,8 +497,14 @@ def clean_window(
             if cfg.time_gap_s is not None:
                 solve_base, timed = spline_closed_gaps(base, obs, max(1, int(round(cfg.time_gap_s * rate_hz))))
             solve_obs = obs | timed
-            if solve_obs.all():
+            seen_frames = obs.any(axis=1)
+            if solve_obs.all() or (seen_frames.any() and (solve_obs | ~seen_frames[:, None]).all()):
+                # nothing left for the solver: the splines fill every missing sample, closed gaps
+                # above and frames with no joint seen below (a dropped frame at the window's edge,
+                # which is no closed gap), so a solve's values would all be thrown away (on a
+                # Kinect file, 600-frame solves for one dropped first frame: 15 % of its cleaning)
                 filled = solve_base
+                info["solve_skipped"] = True
                 out_state = state  # the solver did not run: its warm start carries on
             else:
                 params = alm.SolverParams(mode=cfg.solver_mode, max_iter=cfg.solver_max_iter, tol=cfg.solver_tol)
