@@ -497,8 +497,7 @@ def clean_window(
             if cfg.time_gap_s is not None:
                 solve_base, timed = spline_closed_gaps(base, obs, max(1, int(round(cfg.time_gap_s * rate_hz))))
             solve_obs = obs | timed
-            seen_frames = obs.any(axis=1)
-            if solve_obs.all() or (seen_frames.any() and (solve_obs | ~seen_frames[:, None]).all()):
+            if (solve_obs | ~obs.any(axis=1)[:, None]).all():
                 # nothing left for the solver: the splines fill every missing sample, closed gaps
                 # above and frames with no joint seen below (a dropped frame at the window's edge,
                 # which is no closed gap), so a solve's values would all be thrown away (on a
