@@ -275,3 +275,24 @@ def test_savgol_equals_scipy_interp_mode_on_real_mocap(shared_data, window_s):
     ref = savgol_filter(x, w, 3, axis=0, mode="interp")
     assert np.abs(got - ref).max() < 1e-10
     assert np.abs(got - x).max() > 1e-4  # it does smooth
+
+
+def test_savgol_coefficients_are_scipys():
+    from scipy.signal import savgol_coeffs
+
+    for window in range(3, 64, 2):
+        for order in range(0, min(window, 6)):
+            np.testing.assert_allclose(filters.savgol_coefficients(window, order), savgol_coeffs(window, order),
+                                       rtol=0, atol=1e-14)
+
+
+def test_the_cleaning_path_does_not_import_scipy_signal():
+    """scipy.signal takes ~0.4 s to import, a third of `streamfix clean`'s start: only the
+    baselines that need it (Butterworth, the pose bias's one-pole smoother) import it, when run."""
+    import subprocess
+    import sys
+
+    code = ("import sys, streamfix.cli, streamfix.cleaning, streamfix.streaming.engine; "
+            "print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "False", out.stdout + out.stderr
