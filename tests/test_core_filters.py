@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from streamfix.core import filters
-from streamfix.core.interpolate import interpolate_linear, interpolate_spline
+from streamfix.core.interpolate import cubic_spline_at, interpolate_linear, interpolate_spline
 from streamfix.core.metrics import jitter
 
 
@@ -201,6 +201,26 @@ def test_spline_groups_equal_one_spline_per_joint():
             ref[inside, j] = CubicSpline(ts, x[obs[:, j], j], axis=0)(t[inside])
         assert np.array_equal(np.isnan(got), np.isnan(ref)), case
         assert np.allclose(got, ref, atol=1e-9, equal_nan=True), case
+
+
+def test_cubic_spline_at_is_scipys_not_a_knot_spline_bit_for_bit():
+    # the gap splines evaluate only the intervals holding a query; they must be scipy's
+    # CubicSpline exactly (same slope solve, same per-interval sums), knots spaced unevenly
+    from scipy.interpolate import CubicSpline
+
+    rng = np.random.default_rng(11)
+    for case in range(40):
+        n = int(rng.integers(4, 300))
+        knots = np.sort(rng.choice(np.arange(3 * n), n, replace=False)).astype(np.float64)
+        values = rng.normal(size=(n, int(rng.integers(1, 5)), 3))
+        queries = rng.uniform(knots[0], knots[-1], size=int(rng.integers(1, 40)))
+        queries[0] = knots[int(rng.integers(0, n))]  # on a knot too
+        ref = CubicSpline(knots, values, axis=0, bc_type="not-a-knot")(queries)
+        got = cubic_spline_at(knots, values, queries)
+        assert got.shape == ref.shape, case
+        assert np.array_equal(got, ref), (case, np.abs(got - ref).max())
+    with pytest.raises(ValueError, match="at least 4 knots"):
+        cubic_spline_at(np.arange(3.0), np.zeros((3, 2)), np.array([0.5]))
 
 
 def test_running_median_matches_nanmedian_of_each_shrunken_window():

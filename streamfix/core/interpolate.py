@@ -9,9 +9,10 @@ joint never observed stays NaN. Both functions return ``(filled, filled_mask)`` 
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import CubicSpline
+from scipy.linalg.lapack import dgtsv as _gtsv
 
-__all__ = ["interpolate_linear", "interpolate_spline", "spline_operator", "interpolate", "observed_mask",
+__all__ = ["interpolate_linear", "interpolate_spline", "cubic_spline_at", "spline_operator", "interpolate",
+           "observed_mask",
            "neighbour_observations", "continuity_baseline", "missing_run_lengths", "run_labels"]
 
 
@@ -127,10 +128,57 @@ def interpolate_spline(
     for g, i in enumerate(first):
         pattern, members = columns[:, i], joints[group == g]
         ts = t[pattern]
-        cs = CubicSpline(ts, x[pattern][:, members], axis=0, bc_type="not-a-knot")
         inside = ~pattern & (t > ts[0]) & (t < ts[-1])
-        out[np.ix_(inside, members)] = cs(t[inside])
+        out[np.ix_(inside, members)] = cubic_spline_at(ts, x[pattern][:, members], t[inside])
     return out, filled
+
+
+def cubic_spline_at(knots: np.ndarray, values: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """The not-a-knot cubic spline through ``values`` ``(n, ...)`` at ``knots`` ``(n,)``
+    (increasing, n >= 4), evaluated at ``queries`` ``(m,)`` only: ``(m, ...)``.
+
+    The same slopes as :class:`scipy.interpolate.CubicSpline` (the same tridiagonal system,
+    solved by the same LAPACK ``gtsv``) and the same cubic on each interval, but only the
+    intervals holding a query get coefficients. Why: a window's gaps are a few frames of
+    600, and CubicSpline built all 600 intervals' coefficients for 75 series (1.4 ms a
+    call, 7 % of an offline clean)."""
+    x = np.asarray(knots, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    n = len(x)
+    if n < 4:
+        raise ValueError(f"a not-a-knot cubic spline needs at least 4 knots, got {n}")
+    tail = y.shape[1:]
+    y = y.reshape(n, -1)
+    dx = np.diff(x)
+    dxr = dx[:, None]
+    slope = np.diff(y, axis=0) / dxr
+    # the slopes s: dx[i] s[i-1] + 2 (dx[i-1] + dx[i]) s[i] + dx[i-1] s[i+1] = 3 (dx[i] m[i-1] + dx[i-1] m[i])
+    diag = np.empty(n)
+    upper = np.empty(n - 1)
+    lower = np.empty(n - 1)
+    rhs = np.empty_like(y)
+    diag[1:-1] = 2 * (dx[:-1] + dx[1:])
+    upper[1:] = dx[:-1]
+    lower[:-1] = dx[1:]
+    rhs[1:-1] = 3 * (dxr[1:] * slope[:-1] + dxr[:-1] * slope[1:])
+    d = x[2] - x[0]  # not-a-knot: the third derivative continuous at the second and last-but-one knots
+    diag[0], upper[0] = dx[1], d
+    rhs[0] = ((dxr[0] + 2 * d) * dxr[1] * slope[0] + dxr[0] ** 2 * slope[1]) / d
+    d = x[-1] - x[-3]
+    diag[-1], lower[-1] = dx[-2], d
+    rhs[-1] = (dxr[-1] ** 2 * slope[-2] + (2 * d + dxr[-1]) * dxr[-2] * slope[-1]) / d
+    *_, s, info = _gtsv(lower, diag, upper, rhs, 1, 1, 1, 1)
+    if info != 0:
+        raise np.linalg.LinAlgError("cubic spline: singular slope system (repeated knots?)")
+    q = np.asarray(queries, dtype=np.float64)
+    i = np.clip(np.searchsorted(x, q, side="right") - 1, 0, n - 2)
+    h = dxr[i]
+    t = (s[i] + s[i + 1] - 2 * slope[i]) / h  # the Hermite cubic's coefficients, as CubicHermiteSpline's
+    z = (q - x[i])[:, None]
+    z2 = z * z
+    # summed by ascending power as scipy's PPoly evaluates it (the same bits, not Horner's)
+    out = y[i] + s[i] * z + ((slope[i] - s[i]) / h - t) * z2 + (t / h) * (z2 * z)
+    return out.reshape((len(q),) + tail)
 
 
 def spline_operator(present_rows: np.ndarray, missing_rows: np.ndarray) -> np.ndarray:
@@ -141,7 +189,7 @@ def spline_operator(present_rows: np.ndarray, missing_rows: np.ndarray) -> np.nd
     q = np.asarray(missing_rows, dtype=np.float64)
     if len(p) < 4:
         raise ValueError(f"a cubic spline needs at least 4 present frames, got {len(p)}")
-    return CubicSpline(p, np.eye(len(p)), axis=0, bc_type="not-a-knot")(q)
+    return cubic_spline_at(p, np.eye(len(p)), q)
 
 
 def interpolate(
