@@ -40,6 +40,43 @@ def test_clean_bone_lengths_measured_per_hop_equal_frame_by_frame(shared_data):
     engine.flush()
 
 
+def test_clean_bone_lengths_filed_in_runs_equal_frame_by_frame(shared_data):
+    # the offline engine files a window's worth of clean frames at once: any split into runs
+    # (runs within a hop, across several hops, longer than the memory) leaves the same memory,
+    # pending frames and median as filing them one by one
+    from types import SimpleNamespace
+
+    from streamfix.streaming.bone_lengths import sample_clean_bones
+
+    m = read_motion(shared_data / "kinect_v2" / "Ges01_wavehand.csv")
+    bones, hop, cap = m.skeleton.bone_array, 10, 45
+    frames = m.positions  # 154 frames: more than the memory holds, ending between two hops
+
+    def fresh():
+        return SimpleNamespace(clean_bones_n=0, clean_pending=[], clean_lengths=None,
+                               clean_bones=np.full((cap, len(bones)), np.nan))
+
+    one = fresh()
+    last_one = [sample_clean_bones(one, frames[i:i + 1], bones, hop) for i in range(len(frames))]
+    rng = np.random.default_rng(4)
+    for trial in range(5):
+        sizes = rng.integers(1, 2 * hop, size=len(frames)) if trial < 4 else np.array([3, 120, 7, 24])
+        cuts = np.concatenate([[0], np.cumsum(sizes)])
+        cuts = np.unique(np.clip(cuts, 0, len(frames)))
+        runs = fresh()
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            est = sample_clean_bones(runs, frames[a:b], bones, hop)
+            newest = next((e for e in reversed(last_one[a:b]) if e is not None), None)
+            assert (est is None) == (newest is None), (trial, a, b)
+            if est is not None:
+                assert np.array_equal(est, newest)
+        assert runs.clean_bones_n == one.clean_bones_n == len(frames)
+        assert np.array_equal(runs.clean_bones, one.clean_bones, equal_nan=True), trial
+        assert np.array_equal(runs.clean_lengths, one.clean_lengths), trial
+        assert len(runs.clean_pending) == len(frames) % hop > 0
+        assert np.array_equal(np.asarray(runs.clean_pending), np.asarray(one.clean_pending)), trial
+
+
 def test_histogram_buckets_are_searchsorted_buckets():
     h = Histogram()
     samples = list(Histogram.BOUNDS) + [0.0, 1e-6, 0.00015, 0.003, 7.0, 1e9]

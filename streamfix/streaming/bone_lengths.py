@@ -167,23 +167,31 @@ def length_sources(body: Body, bones: np.ndarray, mirror_bones: np.ndarray, rate
                          max_length_m)
 
 
-def sample_clean_bones(body: Body, pos: np.ndarray, bones: np.ndarray, hop: int) -> np.ndarray | None:
-    """File one clean frame ``pos`` ``(J, 3)`` m into the body's clean-length memory.
+def sample_clean_bones(body: Body, frames: np.ndarray, bones: np.ndarray, hop: int) -> np.ndarray | None:
+    """File clean frames ``frames`` ``(n, J, 3)`` m, oldest first, into the body's clean-length memory.
 
-    Every ``hop`` frames the kept frames are measured in one array call (the same values
-    as frame by frame) and the median over the memory becomes ``body.clean_lengths``
-    (None while not finite); returns that median then (for the live path), else None.
+    Every ``hop`` filed frames the kept frames are measured (one array call) and the median
+    over the memory becomes ``body.clean_lengths`` (None while not finite). Returns the
+    newest such median when the run completed a hop (for the live path, which keeps only
+    the newest lengths), else None. A run of frames gives the same memory and median as
+    filing them one by one: the rows a hop's frames go to and the memory the median is
+    taken over at the run's last completed hop are the same.
     """
-    body.clean_pending.append(pos.copy())  # the emitted frame may be changed by its receiver
-    body.clean_bones_n += 1
-    if body.clean_bones_n % hop:
+    n0 = body.clean_bones_n
+    n1 = n0 + len(frames)
+    body.clean_bones_n = n1
+    done = n1 - n1 % hop  # frames filed up to the newest completed hop
+    if done <= n0:  # no hop completes in this run
+        body.clean_pending.extend(frames.copy())  # copies: the emitted frames may be changed by their receiver
         return None
-    frames = np.stack(body.clean_pending)
-    body.clean_pending = []
-    lengths = np.linalg.norm(frames[:, bones[:, 1]] - frames[:, bones[:, 0]], axis=2)
-    n = body.clean_bones_n
-    body.clean_bones[np.arange(n - len(frames), n) % len(body.clean_bones)] = lengths
-    rows = body.clean_bones[: min(n, len(body.clean_bones))]
+    measured = np.concatenate([np.asarray(body.clean_pending).reshape((-1,) + frames.shape[1:]),
+                               frames[: done - n0]])
+    body.clean_pending = list(frames[done - n0:].copy())
+    cap = len(body.clean_bones)
+    measured = measured[-cap:]  # older frames would be overwritten within the run
+    lengths = np.linalg.norm(measured[:, bones[:, 1]] - measured[:, bones[:, 0]], axis=2)
+    body.clean_bones[np.arange(done - len(measured), done) % cap] = lengths
+    rows = body.clean_bones[: min(done, cap)]
     est = np.median(rows, axis=0)  # clean output is finite
     body.clean_lengths = est if np.isfinite(est).all() else None
     return est

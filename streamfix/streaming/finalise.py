@@ -112,15 +112,18 @@ def finalise_frames(
             emitted, body.bias_last = remove_pose_bias(pos, bones, pose_bias, bias_alpha, body.bias_last)
         bid = body.body_id
         g0 = body.g0
+        handed = np.zeros(len(n_p), dtype=bool)  # frames still pending in the stream
         for i, n in enumerate(n_p.tolist()):
             pend = st.pending.get(g0 + n)
             if pend is None:
                 continue
             pend.slots[bid] = BodyFrame(bid, emitted[i], conf[i], rec[i])
             pend.missing -= 1
-            recovered += int(rec[i].sum())
+            handed[i] = True
+        if handed.any():
+            recovered = int(rec[handed].sum())
             if learn_lengths:
-                est = sample_clean_bones(body, pos[i], bones, hop)
+                est = sample_clean_bones(body, pos[handed], bones, hop)
                 if est is not None and live_output:
                     body.live_path.set_bone_lengths(est)
     if history:  # observed samples of the clean output; row = timeline frame (absent: NaN)
