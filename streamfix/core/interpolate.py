@@ -82,8 +82,13 @@ def interpolate_linear(
     if x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
     obs = observed_mask(x, observed)
-    if obs.all():  # nothing to fill (most sensor windows): the same result without the gather
+    gaps = ~obs.all(axis=0)
+    if not gaps.any():  # nothing to fill (most sensor windows): the same result without the gather
         return x.copy(), np.zeros_like(obs)
+    if not gaps.all():  # joints are independent: only those with a gap are interpolated
+        out, filled = x.copy(), np.zeros_like(obs)
+        out[:, gaps], filled[:, gaps] = interpolate_linear(x[:, gaps], obs[:, gaps])
+        return out, filled
     n, n_joints, _ = x.shape
     prev, nxt = neighbour_observations(obs)
     has_prev, has_next = prev >= 0, nxt < n
@@ -97,8 +102,7 @@ def interpolate_linear(
     out = np.where((has_prev & has_next)[..., None], interior,
                    np.where(has_prev[..., None], xp, xq))
     never = ~(has_prev | has_next)
-    out[never] = np.nan
-    out[obs] = x[obs]
+    out = np.where(obs[..., None], x, np.where(never[..., None], np.nan, out))
     filled = ~obs & ~never
     return out, filled
 
