@@ -223,6 +223,25 @@ def test_cubic_spline_at_is_scipys_not_a_knot_spline_bit_for_bit():
         cubic_spline_at(np.arange(3.0), np.zeros((3, 2)), np.array([0.5]))
 
 
+def test_spline_at_some_frames_is_the_whole_spline_there():
+    # a window that needs its blackout frames alone asks for them; every frame asked for
+    # (observed, inside a gap, at an edge, of a joint never seen or seen under 4 times) must
+    # get the value, and the filled flag, the whole call gives it
+    rng = np.random.default_rng(8)
+    for case in range(60):
+        T, J = int(rng.integers(2, 90)), int(rng.integers(1, 7))
+        x = np.cumsum(rng.normal(size=(T, J, 3)), axis=0)
+        obs = rng.random((T, J)) > rng.uniform(0.05, 0.9)
+        if case % 3 == 0:
+            obs[T // 3:T // 3 + 3] = False  # a blackout
+        frames = np.sort(rng.choice(T, size=int(rng.integers(0, T + 1)), replace=False))
+        whole, filled = interpolate_spline(x, obs)
+        some, some_filled = interpolate_spline(x, obs, frames=frames)
+        assert some.shape == (len(frames), J, 3) and some_filled.shape == (len(frames), J)
+        assert np.array_equal(some, whole[frames], equal_nan=True), case
+        assert np.array_equal(some_filled, filled[frames]), case
+
+
 def test_running_median_matches_nanmedian_of_each_shrunken_window():
     # the sort-based median must give np.nanmedian's value for every missing pattern:
     # odd and even observed counts, all-missing windows (NaN), shrunken edge windows

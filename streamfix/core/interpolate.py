@@ -89,39 +89,57 @@ def interpolate_linear(
         out, filled = x.copy(), np.zeros_like(obs)
         out[:, gaps], filled[:, gaps] = interpolate_linear(x[:, gaps], obs[:, gaps])
         return out, filled
+    return _linear_rows(x, obs, None)
+
+
+def _linear_rows(x: np.ndarray, obs: np.ndarray, rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`interpolate_linear` of ``x`` ``(T, J, 3)`` (``obs`` its observed mask) at the frames
+    ``rows`` only (None: every frame): ``(values (R, J, 3), filled (R, J))``."""
     n, n_joints, _ = x.shape
     prev, nxt = neighbour_observations(obs)
+    t = np.arange(n)
+    x_r, obs_r = x, obs
+    if rows is not None:
+        prev, nxt, t, x_r, obs_r = prev[rows], nxt[rows], t[rows], x[rows], obs[rows]
     has_prev, has_next = prev >= 0, nxt < n
     p = np.clip(prev, 0, n - 1)
     q = np.clip(nxt, 0, n - 1)
     jj = np.arange(n_joints)[None, :]
-    xp, xq = x[p, jj], x[q, jj]  # (T, J, 3)
+    xp, xq = x[p, jj], x[q, jj]  # (R, J, 3)
     span = np.maximum(q - p, 1)
-    w = np.clip((np.arange(n)[:, None] - p) / span, 0.0, 1.0)[..., None]
+    w = np.clip((t[:, None] - p) / span, 0.0, 1.0)[..., None]
     interior = xp + w * (xq - xp)
     out = np.where((has_prev & has_next)[..., None], interior,
                    np.where(has_prev[..., None], xp, xq))
     never = ~(has_prev | has_next)
-    out = np.where(obs[..., None], x, np.where(never[..., None], np.nan, out))
-    filled = ~obs & ~never
+    out = np.where(obs_r[..., None], x_r, np.where(never[..., None], np.nan, out))
+    filled = ~obs_r & ~never
     return out, filled
 
 
 def interpolate_spline(
-    positions: np.ndarray, observed: np.ndarray | None = None
+    positions: np.ndarray, observed: np.ndarray | None = None, frames: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Cubic-spline (not-a-knot) interpolation across interior gaps; edges hold nearest.
 
     One spline per set of joints observed on the same frames (3 coordinates at once; a
     whole-frame blackout gives every joint the same pattern, so one call serves them all);
-    joints with fewer than 4 observations fall back to linear interpolation.
+    joints with fewer than 4 observations fall back to linear interpolation. ``frames``
+    (indices): only those frames are computed and returned, ``(len(frames), J, 3)`` and
+    ``(len(frames), J)``, the values the whole call gives there (a window that needs its
+    blackout frames alone does not interpolate every other gap).
     """
     x = np.asarray(positions, dtype=np.float64)
-    lin, filled = interpolate_linear(x, observed)
     obs = observed_mask(x, observed)
     n = x.shape[0]
     t = np.arange(n, dtype=np.float64)
-    out = lin.copy()
+    if frames is None:
+        rows = np.arange(n)
+        out, filled = interpolate_linear(x, observed)
+    else:
+        rows = np.arange(n)[np.asarray(frames, dtype=np.intp)]
+        out, filled = _linear_rows(x, obs, rows)
+    at = t[rows]
     joints = np.flatnonzero(filled.any(axis=0) & (obs.sum(axis=0) >= 4))  # joints with gaps only
     if len(joints) == 0:
         return out, filled
@@ -132,8 +150,9 @@ def interpolate_spline(
     for g, i in enumerate(first):
         pattern, members = columns[:, i], joints[group == g]
         ts = t[pattern]
-        inside = ~pattern & (t > ts[0]) & (t < ts[-1])
-        out[np.ix_(inside, members)] = cubic_spline_at(ts, x[pattern][:, members], t[inside])
+        inside = ~pattern[rows] & (at > ts[0]) & (at < ts[-1])
+        if inside.any():
+            out[np.ix_(inside, members)] = cubic_spline_at(ts, x[pattern][:, members], at[inside])
     return out, filled
 
 

@@ -527,8 +527,7 @@ def clean_window(
                 # which nothing in it can recover (the solve left such frames 0.2-0.5 m off);
                 # time can: each joint's cubic spline through its observed frames (also
                 # across short blackouts, where it beats the local quadratic on fast motion)
-                temporal, _ = interpolate_spline(base, obs)
-                filled[blackout] = temporal[blackout]
+                filled[blackout] = interpolate_spline(base, obs, frames=np.flatnonzero(blackout))[0]
                 info["blackout_frames"] = int(blackout.sum())
         else:
             filled, _ = interpolate_linear(base, obs)
