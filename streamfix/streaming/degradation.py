@@ -20,7 +20,7 @@ class Degradation:
         self.cfg = cfg
         self.level = 0
         self.hop = cfg.hop
-        self.last_solve_s = 0.0  # the newest solved window's compute time (s)
+        self.solve_s = 0.0  # solved windows' compute time (s), averaged over about one hop's windows
         self._healthy = 0
         self._done_at_change = 0
         self._pending_at_change = 0
@@ -35,13 +35,28 @@ class Degradation:
             return max(1, lvl1 // 2)
         return lvl1
 
+    def observe(self, solve_s: float, n_bodies: int) -> None:
+        """Take a solved window's compute time (s, wall) into :attr:`solve_s`, an exponential
+        average over about ``n_bodies`` windows: the windows one hop owes.
+
+        Why an average: the check asks whether the worker finishes a hop's windows within the
+        hop, which is their mean time against each one's share. A single window is a noisy
+        answer with many bodies: a window's wall time includes the main thread's turns at the
+        GIL, and one window over its 1/30 share of the hop degraded 30 bodies at 30 Hz while the
+        core was 75 % busy (``benchmarks/bench_service.py``). With one body it is the last
+        window's time, as before."""
+        if n_bodies <= 1:
+            self.solve_s = float(solve_s)
+        else:
+            self.solve_s += (float(solve_s) - self.solve_s) / n_bodies
+
     def check(self, inflight: int, windows_due: float, n_bodies: int, done_total: int) -> bool:
         """Update the level before a window is queued; True when it went up (an event).
 
         Overloaded when the worker cannot finish one window per body per hop. Budgets
         scale with the number of tracked bodies ``n_bodies``: ``windows_due`` windows are
         owed every hop, so that many in flight is normal and a body's window may take
-        hop / n_bodies. (Measured: an engine-wide "any window in flight" test degraded 12
+        hop / n_bodies on average (:meth:`observe`). (Measured: an engine-wide "any window in flight" test degraded 12
         bodies at 30 Hz to level 3 and skipped 53 windows although the solver used ~40 %
         of a core.) A level only rises again once windows finished or queued since the
         last change (a stalled worker does not run the level up to 3 at once).
@@ -49,13 +64,13 @@ class Degradation:
         if not self.cfg.degrade:
             return False
         budget_s = self.hop / self.cfg.rate_hz / n_bodies
-        if inflight > windows_due or self.last_solve_s > budget_s:
+        if inflight > windows_due or self.solve_s > budget_s:
             self._healthy = 0
             progressed = done_total > self._done_at_change or inflight > self._pending_at_change
             if self.level < 3 and (progressed or self.level == 0):
                 self._set_level(self.level + 1, done_total, inflight)
                 return True
-        elif self.last_solve_s < 0.5 * budget_s:
+        elif self.solve_s < 0.5 * budget_s:
             self._healthy += 1
             if self.level > 0 and self._healthy >= self.cfg.recover_after:
                 self._set_level(self.level - 1, done_total, inflight)

@@ -857,7 +857,7 @@ class StreamEngine:
             prev_end = body.last_processed_end
             body.last_processed_end = max(body.last_processed_end, job.end)
             if job.status == "done":
-                self.degradation.last_solve_s = job.solve_s
+                self.degradation.observe(job.solve_s, self._active_bodies())
                 self.solve_hist.observe(job.solve_s)
                 if job.error is not None:
                     self.counters["solver_errors"] += 1
