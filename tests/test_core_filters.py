@@ -240,6 +240,9 @@ def test_spline_at_some_frames_is_the_whole_spline_there():
         assert some.shape == (len(frames), J, 3) and some_filled.shape == (len(frames), J)
         assert np.array_equal(some, whole[frames], equal_nan=True), case
         assert np.array_equal(some_filled, filled[frames]), case
+        mask = np.zeros(T, dtype=bool)
+        mask[frames] = True  # the same frames as a mask
+        assert np.array_equal(interpolate_spline(x, obs, frames=mask)[0], whole[frames], equal_nan=True), case
 
 
 def test_running_median_matches_nanmedian_of_each_shrunken_window():

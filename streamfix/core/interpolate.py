@@ -125,7 +125,7 @@ def interpolate_spline(
     One spline per set of joints observed on the same frames (3 coordinates at once; a
     whole-frame blackout gives every joint the same pattern, so one call serves them all);
     joints with fewer than 4 observations fall back to linear interpolation. ``frames``
-    (indices): only those frames are computed and returned, ``(len(frames), J, 3)`` and
+    (indices, or a ``(T,)`` bool mask): only those frames are computed and returned, ``(len(frames), J, 3)`` and
     ``(len(frames), J)``, the values the whole call gives there (a window that needs its
     blackout frames alone does not interpolate every other gap).
     """
@@ -137,7 +137,8 @@ def interpolate_spline(
         rows = np.arange(n)
         out, filled = interpolate_linear(x, observed)
     else:
-        rows = np.arange(n)[np.asarray(frames, dtype=np.intp)]
+        frames = np.asarray(frames)
+        rows = np.arange(n)[np.flatnonzero(frames) if frames.dtype == bool else frames.astype(np.intp)]
         out, filled = _linear_rows(x, obs, rows)
     at = t[rows]
     joints = np.flatnonzero(filled.any(axis=0) & (obs.sum(axis=0) >= 4))  # joints with gaps only
