@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.isometry import length_mode_with_support, symmetric_lengths, thrown_twins
+from ..core.isometry import bone_lengths_per_frame, length_mode_with_support, symmetric_lengths, thrown_twins
 from .bodies import (
     BONE_HISTORY_S,
     BONE_OWN_SUPPORT_S,
@@ -189,8 +189,7 @@ def sample_clean_bones(body: Body, frames: np.ndarray, bones: np.ndarray, hop: i
     body.clean_pending = list(frames[done - n0:].copy())
     cap = len(body.clean_bones)
     measured = measured[-cap:]  # older frames would be overwritten within the run
-    lengths = np.linalg.norm(measured[:, bones[:, 1]] - measured[:, bones[:, 0]], axis=2)
-    body.clean_bones[np.arange(done - len(measured), done) % cap] = lengths
+    body.clean_bones[np.arange(done - len(measured), done) % cap] = bone_lengths_per_frame(measured, bones)
     rows = body.clean_bones[: min(done, cap)]
     est = np.median(rows, axis=0)  # clean output is finite
     body.clean_lengths = est if np.isfinite(est).all() else None
