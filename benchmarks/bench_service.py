@@ -38,7 +38,11 @@ Targets (exit 1 when missed; each printed as an ``[ok]`` / ``[MISS]`` line):
   receive) <= 550 ms, live end-to-end p99 through the sockets < 5 ms. A body-count
   list without 30 misses these.
 
-Latencies are in ms; ``x base`` is the live p99 over the passthrough baseline's.
+Latencies are in ms; ``x base`` is the live p99 over the passthrough baseline's. ``cpu`` is the
+share of a core the service (its child processes included) used while the frames came, ``main``
+its main thread's part (input, live path, publishing; the rest is window solving): a run that
+misses its targets near 100 % has run out of core, one well below it waits on itself (Linux /proc;
+NaN elsewhere).
 Writes ``benchmarks/results/service.json`` (``--json``; the rows, the bars, the CPUs
 pinned and the git commit).
 
@@ -118,6 +122,34 @@ def wait_until_serving(proc: subprocess.Popen, m_port: int, timeout_s: float = 6
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"serve did not start: {proc.stderr.read().decode()}")
             time.sleep(0.1)
+
+def cpu_seconds(pid: int) -> tuple[float, float] | None:
+    """CPU seconds so far of process ``pid`` and its child processes (``--solver-process``), and of
+    its main thread alone (from /proc; None where there is none). Why: with the service pinned to
+    one core, the share of that core it used over the run says whether a miss is the core running
+    out (capacity) or the service waiting on itself (scheduling)."""
+    tick = os.sysconf("SC_CLK_TCK")
+
+    def stat_seconds(path: str) -> float:
+        with open(path) as f:
+            fields = f.read().rpartition(")")[2].split()
+        return (int(fields[11]) + int(fields[12])) / tick  # utime + stime
+
+    try:
+        total = stat_seconds(f"/proc/{pid}/stat")
+        main_thread = stat_seconds(f"/proc/{pid}/task/{pid}/stat")
+        for child in Path("/proc").glob("[0-9]*"):
+            try:
+                with open(child / "stat") as f:
+                    ppid = int(f.read().rpartition(")")[2].split()[1])
+                if ppid == pid:
+                    total += stat_seconds(str(child / "stat"))
+            except (OSError, ValueError, IndexError):
+                continue  # a process that ended meanwhile
+        return total, main_thread
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
 
 def share_le(m: dict[str, float], name: str, bound: str) -> float:
     """Share of a histogram's observations <= bound (bound as printed, e.g. '0.002')."""
@@ -204,6 +236,7 @@ def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: s
         for sid, _ in streams:
             push.send_multipart([topic_for("meta", sid), encode_skeleton_message(KINECT_V2, RATE_HZ, sid)])
         t0 = time.monotonic()
+        cpu0 = cpu_seconds(proc.pid)
         period_ns = int(1e9 / RATE_HZ)
         for i in range(n_frames):
             due = t0 + i / RATE_HZ  # absolute schedule: no drift
@@ -221,6 +254,10 @@ def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: s
                 payload = encode_frame(SkeletonFrame(sid, i, t_sensor, KINECT_V2.name, bodies))
                 sent_ns[sid, t_sensor] = time.time_ns()
                 push.send_multipart([topic_for("raw", sid), payload])
+        cpu1, t1 = cpu_seconds(proc.pid), time.monotonic()
+        # the service's share of its core(s) while the frames came: total and its main (input) thread
+        cpu_share = (cpu1[0] - cpu0[0]) / (t1 - t0) if cpu0 and cpu1 else float("nan")
+        main_share = (cpu1[1] - cpu0[1]) / (t1 - t0) if cpu0 and cpu1 else float("nan")
         # let the last clean frames out: wait a lookahead plus a margin, then flush with SIGTERM
         time.sleep(LOOKAHEAD_S + 1.0)
         m = metrics(m_port)
@@ -266,6 +303,8 @@ def run(engine: str, n_bodies: int, seconds: float, warmup: float, serve_cpus: s
         "limit_hits": sum(v for k, v in m.items() if k.startswith("streamfix_limit_hits_total")),
         "first_live": min((t for _, t in recv["live"]), default=-period_ns) // period_ns,  # first frame out on live
         "lookahead_s": LOOKAHEAD_S if engine != "passthrough" else 0.0,
+        "cpu_share": cpu_share,  # CPU seconds of serve (and its children) per second of sending
+        "main_thread_share": main_share,  # ... of its main thread: input, live path, publishing
     }
 
 
@@ -301,7 +340,7 @@ def main() -> int:
           f"(others' load inflates every number)")
     print(f"{'engine':<12}{'bodies':>7}{'streams':>8}{'out l/c':>12}{'live p50':>10}{'live p99':>10}{'x base':>8}"
           f"{'clean p50':>10}{'clean p99':>10}{'beyond L':>10}{'live<=2ms':>10}{'clean<=100ms':>13}{'degraded':>9}"
-          f"{'live/body':>10}")
+          f"{'live/body':>10}{'cpu':>6}{'main':>6}")
     checks: list[tuple[str, bool, str]] = []  # (bar, met, measured value)
     for r in rows:
         beyond = r["clean_p99"] - r["lookahead_s"]
@@ -311,7 +350,7 @@ def main() -> int:
               f"{ms(r['live_p50']):>10}{ms(r['live_p99']):>10}{ratio:>8.1f}"
               f"{ms(r['clean_p50']):>10}{ms(r['clean_p99']):>10}{ms(beyond):>10}"
               f"{r['live_compute_ok'] * 100:>9.1f}%{r['clean_compute_ok'] * 100:>12.1f}%{str(r['degraded']):>9}"
-              f"{ms(r['live_compute_mean'] / r['bodies']):>10}")
+              f"{ms(r['live_compute_mean'] / r['bodies']):>10}{r['cpu_share'] * 100:>5.0f}%{r['main_thread_share'] * 100:>5.0f}%")
         if r["engine"] == "passthrough":
             continue
         # the live target is per tracked body: checked on the one-body run (a frame = a body)
