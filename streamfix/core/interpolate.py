@@ -12,8 +12,7 @@ import numpy as np
 from scipy.linalg.lapack import dgtsv as _gtsv
 
 __all__ = ["interpolate_linear", "interpolate_spline", "cubic_spline_at", "spline_operator", "interpolate",
-           "observed_mask",
-           "neighbour_observations", "continuity_baseline", "missing_run_lengths", "run_labels"]
+           "observed_mask", "neighbour_observations", "continuity_baseline", "missing_run_lengths", "run_labels"]
 
 
 def observed_mask(positions: np.ndarray, observed: np.ndarray | None) -> np.ndarray:

@@ -18,7 +18,7 @@ __all__ = ["MAX_MEDIAN_BONE_M", "MAX_MEDIAN_EXTENT_M", "units_problem"]
 
 MAX_MEDIAN_BONE_M = 3.0
 MAX_MEDIAN_EXTENT_M = 10.0
-SAMPLE_FRAMES = 2000  # frames looked at, evenly spaced: the medians are far from the limits either way
+SAMPLE_FRAMES = 2000  # at most this many frames looked at, evenly spaced: the medians are far from the limits
 
 
 def units_problem(positions: np.ndarray, bones: np.ndarray) -> str | None:
@@ -26,11 +26,11 @@ def units_problem(positions: np.ndarray, bones: np.ndarray) -> str | None:
 
     ``bones`` ``(B, 2)``: the skeleton's (parent, child) joints; without bones the median
     over frames of each frame's extent (bounding-box diagonal of its finite joints) is used.
-    A long take is judged on :data:`SAMPLE_FRAMES` evenly spaced frames (the whole check cost
+    A long take is judged on at most :data:`SAMPLE_FRAMES` evenly spaced frames (the whole check cost
     2 % of cleaning a 10,000-frame file; people's bones are 10x under the limit, millimetres 300x over).
     """
     x = np.asarray(positions, dtype=np.float64)
-    x = x[:: max(1, len(x) // SAMPLE_FRAMES)]
+    x = x[:: max(1, -(-len(x) // SAMPLE_FRAMES))]  # the step rounded up: never more than SAMPLE_FRAMES
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN frames or joints

@@ -30,7 +30,7 @@ scores the output against the reference, per dataset and per body region (``all`
      move_m,                      # mean |output - input| (m) on the sensor's tracked joint-frames
                                   #   (the real-Kinect bar's "tracked joints moved", here with the truth)
      move_bar_scale,              # engine methods, when median_savgol ran too (else None): the factor
-                                  #   a each take's move is scaled by to meet TRACKED_MOVE_BAR x
+                                  #   each take's move is scaled by to meet TRACKED_MOVE_BAR x
                                   #   median_savgol's move (frame-weighted mean over takes), and
      debiased_at_move_bar_m,      #   the debiased mean error of that scaled output: what meeting
                                   #   that bar by moving less costs
