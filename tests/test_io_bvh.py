@@ -139,6 +139,10 @@ def test_explicit_scale(shared_data):
          r"unexpected end of file in HIERARCHY"),
         (lambda t: t.replace("Frame Time: 0.0333333", "Frame Time: 0"),
          r"line 18: Frame Time must be positive"),
+        # a hierarchy with no motion is refused when read, naming why (the writer's "root joint is
+        # missing in every frame" was all `streamfix clean` said of it)
+        (lambda t: t.replace("Frames: 3", "Frames: 0").split("Frame Time: 0.0333333")[0] + "Frame Time: 0.0333333\n",
+         r"bad\.bvh line 17: no frames \('Frames: 0'\)"),
     ],
 )
 def test_malformed(tmp_path, mutate, pattern):

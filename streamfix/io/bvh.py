@@ -304,6 +304,8 @@ def read_bvh(path: str | Path, scale: float | None = None, *, include_end_sites:
         raise MotionFileError(path, f"Frame Time is not a number: {header['dt'][0]!r}", line=header["dt"][1]) from None
     if not (np.isfinite(dt) and dt > 0):
         raise MotionFileError(path, f"Frame Time must be positive seconds, got {dt}", line=header["dt"][1])
+    if n_frames <= 0:  # as the other readers: nothing to clean, said here rather than by the writer
+        raise MotionFileError(path, f"no frames ('Frames: {n_frames}')", line=header["frames"][1])
 
     rows: list[list[str]] = []
     row_lines: list[int] = []
