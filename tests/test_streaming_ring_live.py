@@ -142,8 +142,10 @@ def test_live_gate_lets_fast_real_motion_through(walking_kinect30):
         live = _live_topic(truth, EngineConfig(rate_hz=30.0, live=LiveConfig(rigid_release=release)))
         assert live.shape == truth.shape
         errors[release] = np.linalg.norm(live - truth, axis=2)
-    assert errors[True].max() < 0.13  # what the One Euro filter's lag alone leaves: 0.10 m
-    assert np.percentile(errors[True], 99) < 0.06
+    # 0.06 m: exact mocap has no sensor noise, so after the first window the One Euro filter passes
+    # the samples (LiveConfig.match_noise; its lag alone had left 0.10 m)
+    assert errors[True].max() < 0.09
+    assert np.percentile(errors[True], 99) < 0.03
     assert errors[False].max() > 1.5 * errors[True].max()
 
 

@@ -53,7 +53,7 @@ class Job:
     __slots__ = (
         "body", "start", "end", "positions", "confidence", "bone_lengths", "iterations",
         "status", "result_pos", "result_rec", "solve_s", "n_iter", "converged", "error", "final", "history",
-        "hop_before", "hop_after", "noise_share", "released", "judged",
+        "hop_before", "hop_after", "noise_share", "noise_reported", "released", "judged",
     )
 
     def __init__(self, body: "Body", start: int, end: int, positions, confidence, bone_lengths, iterations, final=False):
@@ -71,6 +71,7 @@ class Job:
         self.final = final
         self.history: np.ndarray | None = None
         self.noise_share = 0.0  # how much of the window's output the engine smooths (solver's info)
+        self.noise_reported = False  # the solver said so (a solver that does not leaves the live filter as it is)
         self.released: np.ndarray | None = None  # (T, J) samples the solver released as frozen (its info)
         self.judged: np.ndarray | None = None  # (T, J) samples its real-sensor stages judged wrong (its info)
         self.hop_before = self.hop_after = 0  # frames from the previous window's end / to the next one's (blend weights)

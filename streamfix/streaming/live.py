@@ -27,7 +27,9 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
    rejections); measured worse on real Kinect data (it raised jitter) and kept for
    comparison. ``gate='none'`` disables the gate.
 2. **Low-pass**: the One Euro filter (Casiez et al. 2012) or the Kinect SDK Holt filter
-   from :mod:`streamfix.core.filters`, on the gated samples.
+   from :mod:`streamfix.core.filters`, on the gated samples. The One Euro filter smooths as
+   much as the window solver finds sensor noise (:meth:`LivePath.set_noise_share`): fully
+   on a depth sensor, not at all on exact motion capture, where it would only lag.
 3. **Bone-length projection** (non-iterative): walking the skeleton tree from its roots,
    one depth level at a time (vectorised within a level), a child is placed at
    ``l_b * u`` from its parent, ``u`` the filtered bone direction and ``l_b`` the robust
@@ -96,7 +98,10 @@ class LiveConfig:
     the robust lengths cost 1-3 mm of debiased error against Vicon on UI-PRMD and KERAAL);
     repair_depth: a raw sample thrown along its camera ray (a depth read off the background,
     :mod:`streamfix.core.ray_depth`) is moved back along it first, on a path built with
-    ``camera_space`` (the engine: a depth sensor's or pose estimator's layout).
+    ``camera_space`` (the engine: a depth sensor's or pose estimator's layout);
+    match_noise: the One Euro filter smooths as much as the window solver finds sensor noise
+    (:meth:`LivePath.set_noise_share`: the engine hands over each solved window's share; 1
+    until the first, 0 for exact motion capture, whose samples then pass unfiltered).
     """
 
     filter: str = "one_euro"
@@ -113,6 +118,7 @@ class LiveConfig:
     rigid_release: bool = True
     project_tracked: bool = False
     repair_depth: bool = True
+    match_noise: bool = True
 
     def __post_init__(self) -> None:
         if self.filter not in ("one_euro", "holt", "none"):
@@ -238,6 +244,7 @@ class LivePath:
         tree = self._tree[0] if self._tree else np.zeros((0, 2), dtype=np.intp)
         self._tree_pc = np.ascontiguousarray(tree[:, 0]), np.ascontiguousarray(tree[:, 1])
         self._fused = config.gate == "theil_sen" and config.filter == "one_euro" and not config.propagate
+        self._noise_share = 1.0  # smooth fully until the engine's windows say how noisy the sensor is
         self._params = (config.min_cutoff, config.beta, config.d_cutoff, config.gate_min_m, config.gate_k)
         self.bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
         self._child_len = np.full(n_joints, np.nan)
@@ -275,8 +282,32 @@ class LivePath:
         self._scale = np.full((J, 3), np.nan)  # running mean |innovation| (m)
         self._rejected = np.zeros((J, 3), dtype=np.int64)
         self._filter = _make_filter(self.cfg, self.rate_hz)
+        self._apply_noise_share()
         self._last = np.full((J, 3), np.nan)
         self.gated_total = 0
+
+    def set_noise_share(self, share: float) -> None:
+        """How much of the input is sensor noise, in [0, 1]: a solved window's share
+        (:data:`streamfix.streaming.solver_api.NOISE_SHARE_KEY`, the same verdict by which the
+        clean topic is smoothed). The One Euro filter's resting cutoff becomes ``min_cutoff /
+        share``: 1 keeps the configured filter bit for bit, 0 passes the gated samples through
+        unfiltered. Why: on exact motion capture the filter removes no noise and only lags (the
+        live topic moved uncorrupted joints 13 mm on the sensor protocol's mocap takes, while
+        every Kinect window reports a share of 1). Ignored unless ``match_noise``; the Holt
+        filter keeps its parameters."""
+        if not self.cfg.match_noise:
+            return
+        share = float(share)
+        self._noise_share = min(max(share, 0.0), 1.0) if share == share else 1.0  # NaN: smooth
+        self._apply_noise_share()
+
+    def _apply_noise_share(self) -> None:
+        """The One Euro resting cutoff for the current noise share (see :meth:`set_noise_share`)."""
+        cfg = self.cfg
+        min_cutoff = cfg.min_cutoff / self._noise_share if self._noise_share > 0.0 else np.inf
+        self._params = (min_cutoff, cfg.beta, cfg.d_cutoff, cfg.gate_min_m, cfg.gate_k)
+        if self._filter is not None and not isinstance(self._filter, _HOLT):
+            self._filter.min_cutoff = min_cutoff
 
     def set_bone_lengths(self, lengths: np.ndarray | None) -> None:
         """Target ``(B,)`` bone lengths (m) for the projection; NaN/None leaves bones alone."""

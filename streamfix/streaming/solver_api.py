@@ -13,7 +13,9 @@ __all__ = ["NOISE_SHARE_KEY", "RELEASED_KEY", "JUDGED_KEY", "WindowOutput", "Win
 NOISE_SHARE_KEY = "sensor_noise_share"
 """Key of a window solver's ``info``: in [0, 1], how much of the window is sensor noise
 that the engine may smooth at the output (:func:`~streamfix.streaming.overlap_add.smooth_output`); absent
-= 0, the output is left as the solver gave it. ``clean_window`` writes its stage-3 gate."""
+= 0, the output is left as the solver gave it. ``clean_window`` writes its stage-3 gate. The live
+topic's One Euro filter follows it too (:meth:`streamfix.streaming.live.LivePath.set_noise_share`;
+absent: the filter keeps its configured strength)."""
 
 RELEASED_KEY = "released"
 """Key of a window solver's ``info``: ``(T, J)`` bool, the samples it judged the sensor's

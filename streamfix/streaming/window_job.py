@@ -86,6 +86,7 @@ def solve_job(
         job.n_iter = int(getattr(res, "iterations", 0) or 0)
         info = getattr(res, "info", None) or {}
         job.noise_share = float(np.clip(info.get(NOISE_SHARE_KEY, 0.0), 0.0, 1.0))
+        job.noise_reported = NOISE_SHARE_KEY in info
         judged = info.get(JUDGED_KEY)
         job.judged = None if judged is None or np.shape(judged) != rec.shape else np.asarray(judged, dtype=bool)
         released = info.get(RELEASED_KEY)
