@@ -291,9 +291,9 @@ class LivePath:
         (:data:`streamfix.streaming.solver_api.NOISE_SHARE_KEY`, the same verdict by which the
         clean topic is smoothed). The One Euro filter's resting cutoff becomes ``min_cutoff /
         share``: 1 keeps the configured filter bit for bit, 0 passes the gated samples through
-        unfiltered. Why: on exact motion capture the filter removes no noise and only lags (the
-        live topic moved uncorrupted joints 13 mm on the sensor protocol's mocap takes, while
-        every Kinect window reports a share of 1). Ignored unless ``match_noise``; the Holt
+        unfiltered. Why: on exact motion capture the filter removes no noise and only lags, moving
+        joints the sensor has right (the live column of ``benchmarks/results/sensor.md``), while a
+        depth sensor's windows report a share of 1. Ignored unless ``match_noise``; the Holt
         filter keeps its parameters."""
         if not self.cfg.match_noise:
             return
