@@ -130,20 +130,21 @@ def cpu_seconds(pid: int) -> tuple[float, float] | None:
     out (capacity) or the service waiting on itself (scheduling)."""
     tick = os.sysconf("SC_CLK_TCK")
 
-    def stat_seconds(path: str) -> float:
+    def stat_fields(path) -> list[str]:  # the fields after the command name: state, ppid, ...
         with open(path) as f:
-            fields = f.read().rpartition(")")[2].split()
+            return f.read().rpartition(")")[2].split()
+
+    def seconds(fields: list[str]) -> float:
         return (int(fields[11]) + int(fields[12])) / tick  # utime + stime
 
     try:
-        total = stat_seconds(f"/proc/{pid}/stat")
-        main_thread = stat_seconds(f"/proc/{pid}/task/{pid}/stat")
+        total = seconds(stat_fields(f"/proc/{pid}/stat"))
+        main_thread = seconds(stat_fields(f"/proc/{pid}/task/{pid}/stat"))
         for child in Path("/proc").glob("[0-9]*"):
             try:
-                with open(child / "stat") as f:
-                    ppid = int(f.read().rpartition(")")[2].split()[1])
-                if ppid == pid:
-                    total += stat_seconds(str(child / "stat"))
+                fields = stat_fields(child / "stat")
+                if int(fields[1]) == pid:
+                    total += seconds(fields)
             except (OSError, ValueError, IndexError):
                 continue  # a process that ended meanwhile
         return total, main_thread

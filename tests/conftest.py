@@ -34,5 +34,17 @@ def keraal(shared_data):
 
 
 @pytest.fixture(scope="session")
+def walking_kinect30(shared_data):
+    """CMU 131_01 as exact Kinect v2 joints at 30 Hz, 20 s: feet at toe-off and heel strike
+    accelerate faster than a line through 7 samples (0.23 s) can follow. Exact
+    optical motion capture: no sensor noise."""
+    from streamfix.evaluation.sensor import ground_truth
+
+    walking = ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", 30.0).positions[:600]
+    walking.setflags(write=False)  # shared by every test of the session
+    return walking
+
+
+@pytest.fixture(scope="session")
 def project_root() -> Path:
     return PROJECT_ROOT

@@ -15,11 +15,8 @@ from streamfix.streaming.solver_api import WindowOutput
 
 
 @pytest.fixture(scope="module")
-def walking(shared_data):
-    """CMU 131_01 as exact Kinect v2 joints at 30 Hz (optical motion capture: no sensor noise)."""
-    from streamfix.evaluation.sensor import ground_truth
-
-    return ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", 30.0).positions[:300]
+def walking(walking_kinect30):
+    return walking_kinect30[:300]
 
 
 def _run_path(x: np.ndarray, config: LiveConfig, share: float | None) -> np.ndarray:

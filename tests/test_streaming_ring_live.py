@@ -110,15 +110,6 @@ def test_live_jitter_three_times_lower_than_input(cmu30, fraction):
     assert err_live < err_in
 
 
-@pytest.fixture(scope="module")
-def walking_kinect30(shared_data):
-    """CMU 131_01 as exact Kinect v2 joints at 30 Hz, 20 s: feet at toe-off and heel strike
-    accelerate faster than a line through 7 samples (0.23 s) can follow."""
-    from streamfix.evaluation.sensor import ground_truth
-
-    return ground_truth(shared_data / "cmu_bvh" / "131_01.bvh", 30.0).positions[:600]
-
-
 def _live_topic(truth: np.ndarray, config: EngineConfig) -> np.ndarray:
     engine = StreamEngine(KINECT_V2, config)
     live = []

@@ -58,8 +58,9 @@ class Degradation:
         owed every hop, so that many in flight is normal and a body's window may take
         hop / n_bodies on average (:meth:`observe`). (Measured: an engine-wide "any window
         in flight" test degraded 12 bodies at 30 Hz to level 3 and skipped 53 windows
-        although the solver used ~40 % of a core.) A level only rises again once windows finished or queued since the
-        last change (a stalled worker does not run the level up to 3 at once).
+        although the solver used ~40 % of a core.) A level only rises again once windows
+        finished or queued since the last change (a stalled worker does not run the level up
+        to 3 at once).
         """
         if not self.cfg.degrade:
             return False

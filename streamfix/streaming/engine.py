@@ -870,7 +870,7 @@ class StreamEngine:
                 if not job.converged:
                     self.counters["solver_not_converged"] += 1
                 blend_window(body, job, prev_end, self.cfg, self._output_taps, self._fill_taps)
-                if body.live_path is not None and job.noise_reported:  # the live filter smooths as much as it found noise
+                if self.cfg.live_output and job.noise_reported:  # the live filter smooths as much as it found noise
                     body.live_path.set_noise_share(job.noise_share)
                 if self.cfg.live_anchor and self.cfg.live_output and job.end == body.count and job.result_pos is not None:
                     body.live_path.anchor(job.result_pos[-3:])

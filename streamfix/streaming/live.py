@@ -297,8 +297,7 @@ class LivePath:
         filter keeps its parameters."""
         if not self.cfg.match_noise:
             return
-        share = float(share)
-        self._noise_share = min(max(share, 0.0), 1.0) if share == share else 1.0  # NaN: smooth
+        self._noise_share = float(np.clip(share, 0.0, 1.0)) if np.isfinite(share) else 1.0  # NaN: smooth
         self._apply_noise_share()
 
     def _apply_noise_share(self) -> None:
