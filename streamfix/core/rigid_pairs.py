@@ -2,7 +2,8 @@
 
 Not in the paper. Markers on one body segment keep their distance; a gap fill that
 stretches such a pair is implausible. :func:`estimate_rigid_pairs` finds the pairs
-whose distance varies least where both are observed, :func:`pair_distance_ranges`
+whose distance varies least where both are observed (:func:`pair_distance_spread`; per
+marker, :func:`rigid_neighbours`), :func:`pair_distance_ranges`
 their observed range, :func:`project_pair_distances` moves filled markers back inside
 it, :func:`pair_distance_plausibility` scores a fill. Positions ``(T, J, 3)`` metres.
 """
@@ -12,16 +13,16 @@ import numpy as np
 
 from .pca_training import _observed_mask
 
-__all__ = ["estimate_rigid_pairs", "pair_distance_ranges", "project_pair_distances", "pair_distance_plausibility"]
+__all__ = ["pair_distance_spread", "estimate_rigid_pairs", "rigid_neighbours", "pair_distance_ranges",
+           "project_pair_distances", "pair_distance_plausibility"]
 
-def estimate_rigid_pairs(positions: np.ndarray, observed: np.ndarray | None = None, k: int = 60,
+
+def pair_distance_spread(positions: np.ndarray, observed: np.ndarray | None = None,
                          min_common: float = 0.25) -> np.ndarray:
-    """The ``k`` marker pairs whose distance varies least (std in metres, where both seen).
-
-    Only pairs seen together in at least ``min_common`` of the frames (a fraction, or
-    a frame count if > 1) count: a pair seen together only while the body stood still
-    looks rigid without being so. Returns ``(k, 2)`` int pairs, most rigid first.
-    """
+    """``(J, J)`` standard deviation (m) of each marker pair's distance over the frames where
+    both are observed; ``inf`` on the diagonal and for pairs seen together in fewer than
+    ``min_common`` of the frames (a fraction, or a frame count if > 1): a pair seen together
+    only while the body stood still looks rigid without being so."""
     x = np.asarray(positions, dtype=np.float64)
     obs = _observed_mask(x, observed)
     T_len, J, _ = x.shape
@@ -33,9 +34,30 @@ def estimate_rigid_pairs(positions: np.ndarray, observed: np.ndarray | None = No
     c = np.maximum(cnt, 1)
     mean = (d * both).sum(axis=0) / c
     var = ((d - mean) ** 2 * both).sum(axis=0) / c
-    score = np.where(cnt >= max(need, 2), np.sqrt(var), np.inf)
+    spread = np.full((J, J), np.inf)
+    spread[ia, ib] = spread[ib, ia] = np.where(cnt >= max(need, 2), np.sqrt(var), np.inf)
+    return spread
+
+
+def estimate_rigid_pairs(positions: np.ndarray, observed: np.ndarray | None = None, k: int = 60,
+                         min_common: float = 0.25) -> np.ndarray:
+    """The ``k`` marker pairs whose distance varies least (:func:`pair_distance_spread`).
+    Returns ``(k, 2)`` int pairs, most rigid first."""
+    spread = pair_distance_spread(positions, observed, min_common)
+    ia, ib = np.triu_indices(spread.shape[0], 1)
+    score = spread[ia, ib]
     order = np.argsort(score, kind="stable")[: min(k, int(np.isfinite(score).sum()))]
     return np.stack([ia[order], ib[order]], axis=1).astype(np.intp)
+
+
+def rigid_neighbours(spread: np.ndarray, k: int) -> np.ndarray:
+    """``(J, k)`` indices: per marker, the ``k`` others whose distance to it varies least
+    (``spread`` from :func:`pair_distance_spread`; ties in index order)."""
+    s = np.asarray(spread, dtype=np.float64)
+    k = int(min(max(k, 0), s.shape[0] - 1))
+    s = s.copy()
+    np.fill_diagonal(s, np.inf)
+    return np.argsort(s, axis=1, kind="stable")[:, :k]
 
 
 def pair_distance_ranges(positions: np.ndarray, observed: np.ndarray, pairs: np.ndarray
