@@ -8,7 +8,8 @@ gaps are longer than the solver window::
     motion = fill_motion_gaps(motion, training="refs/")     # + reference takes (files/dir)
 
 Partial gaps are filled by Li et al. (2020) Eq. (4) (local templates), whole missing
-frames by Eq. (16), leftovers by linear interpolation (see
+frames by Eq. (16) blended with a spline (for marker sets, each marker's spline in the frame
+of its most rigid neighbours, :mod:`streamfix.core.corotating`), leftovers by linear interpolation (see
 :mod:`streamfix.core.pca_gapfill`). The take's own observed samples always train the
 model (never a gap: missing samples are NaN), so nothing needs to be prepared. For
 marker sets (a skeleton without bones) the filled markers are then projected so that
@@ -107,9 +108,10 @@ def fill_motion_gaps(
     ts = _training(motion, training)
     window = blackout_window or max(int(round(200 * motion.rate_hz / 120.0)), 20)
     kappa = (TRUST_KAPPA if motion.skeleton.n_bones else None) if trust_kappa == -1.0 else trust_kappa
+    marker_set = motion.skeleton.n_bones == 0
     filled_pos, filled = pca_fill(motion.positions, obs, ts, energy=energy, n_partners=n_partners,
-                                     blackout_window=window, trust_kappa=kappa)
-    n_pairs = rigid_pairs if rigid_pairs is not None else (RIGID_PAIRS if motion.skeleton.n_bones == 0 else 0)
+                                  blackout_window=window, trust_kappa=kappa, corotating=marker_set)
+    n_pairs = rigid_pairs if rigid_pairs is not None else (RIGID_PAIRS if marker_set else 0)
     summary: dict = {"filled": int(filled.sum()), "training_takes": len(ts.motions)}
     if n_pairs and filled.any():
         pairs = pg.estimate_rigid_pairs(motion.positions, obs, k=n_pairs)

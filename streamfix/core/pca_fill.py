@@ -39,6 +39,7 @@ def pca_fill(
     blackout_window: int = 200,
     fallback_linear: bool = True,
     bases: dict | None = None,
+    corotating: bool = False,
     **gap_kwargs,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Everything: partial gaps by Eq. (4)/(8), whole missing frames by Eq. (16).
@@ -46,7 +47,9 @@ def pca_fill(
     Frames with fewer than ``min_observed_joints`` observed joints count as blackout
     frames. ``bases`` (a dict kept by the caller) caches Eq. (16)'s temporal bases
     between calls with the same training set. Whatever neither estimator could fill (e.g. no training frame has the
-    joint) is linearly interpolated when ``fallback_linear``. Returns
+    joint) is linearly interpolated when ``fallback_linear``. ``corotating``: blackouts are
+    blended with the spline in co-rotating frames (marker sets; see
+    :func:`~streamfix.core.pca_blackouts.fill_blackouts`). Returns
     ``(filled, filled_mask)``; with nothing missing the output equals the input.
     """
     x = np.asarray(positions, dtype=np.float64)
@@ -59,7 +62,8 @@ def pca_fill(
     out1, f1 = fill_gaps(out, obs, ts, energy=energy, min_observed_joints=min_observed_joints, **gap_kwargs)
     have = obs | f1
     black = obs.sum(axis=1) < min_observed_joints
-    out2, f2 = fill_blackouts(out1, have, ts, blackout=black, window=blackout_window, bases=bases)
+    out2, f2 = fill_blackouts(out1, have, ts, blackout=black, window=blackout_window, bases=bases,
+                              corotating=corotating)
     have2 = have | f2
     if fallback_linear and not have2.all():
         out2, f3 = _interp_leftover(out2, have2)
