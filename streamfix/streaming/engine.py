@@ -33,7 +33,9 @@ window ``W``, hop ``H`` and lookahead ``L`` (frames, ``1 <= H <= L + 1 <= W``):
   the input unchanged bit for bit. A sample a window released as the sensor's frozen
   guess (its ``info[RELEASED_KEY]``) drops what older windows that kept it blended: they
   saw too little of the frozen run to judge it and kept the sensor's pose
-  (:func:`~streamfix.streaming.overlap_add.blend_window`).
+  (:func:`~streamfix.streaming.overlap_add.blend_window`); likewise a gap's sample a window
+  saw end (the joint observed later in it) drops what older windows blended while the gap
+  was open (:func:`~streamfix.streaming.overlap_add.closed_gaps`).
 * where the windows report sensor noise (their ``info[NOISE_SHARE_KEY]``, blended like
   the positions; ``clean_window``'s stage-3 gate), the blended values are then smoothed
   over time by a short kernel that keeps quadratic motion (``output_smooth_s``,
