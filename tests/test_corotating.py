@@ -27,14 +27,14 @@ def _rotations(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
-def _two_segments(T: int = 240, seed: int = 0) -> np.ndarray:
-    """``(T, 12, 3)`` m: two rigid 6-marker clusters (radius ~0.1 m), one turning at 4 rad/s
-    about a tilted axis, one at -2.5 rad/s about another, both travelling on curves."""
+def _two_segments(T: int = 240, seed: int = 0, per_segment: int = 6) -> np.ndarray:
+    """``(T, 2 * per_segment, 3)`` m: two rigid marker clusters (radius ~0.1 m), one turning
+    at 4 rad/s about a tilted axis, one at -2.5 rad/s about another, both travelling on curves."""
     rng = np.random.default_rng(seed)
     t = np.arange(T) / RATE
     out = []
     for axis, rate, offset in (([0.2, 1.0, 0.3], 4.0, 0.0), ([1.0, 0.1, -0.4], -2.5, 0.6)):
-        shape = rng.normal(scale=0.06, size=(6, 3))
+        shape = rng.normal(scale=0.06, size=(per_segment, 3))
         shape -= shape.mean(axis=0)
         R = _rotations(np.asarray(axis, dtype=float), rate * t)
         path = np.stack([0.4 * np.sin(1.3 * t) + offset, 1.0 + 0.2 * np.cos(0.9 * t), 0.3 * t], axis=1)
@@ -170,3 +170,25 @@ def test_vicon_repetitions_blackouts_filled_at_least_as_well_as_the_spline(share
     assert len(errs["fill"]) == 10
     fill, spline, linear = (float(np.mean(errs[k])) for k in ("fill", "spline", "linear"))
     assert fill <= 1.02 * spline and fill < 0.3 * linear, (fill, spline, linear)
+
+
+def test_serve_bridge_splines_marker_blackouts_in_co_rotating_frames():
+    """The streaming bridge's ``time`` source on a marker set: whole-frame blackouts from
+    the co-rotating spline, other samples as the room spline left them, a marker never
+    seen left alone."""
+    from streamfix.streaming.bridging import corotating_blackouts
+
+    x = _two_segments(per_segment=10)                         # 20 markers, the default 8 partners each
+    obs = np.ones(x.shape[:2], dtype=bool)
+    obs[90:162] = False                                       # a blackout
+    obs[20:30, 3] = False                                     # a marker's own gap
+    obs[:, 19] = False                                        # a marker never seen
+    temporal = interpolate_spline(np.where(obs[..., None], x, np.nan), obs)[0]
+    temporal[:, 19] = np.nan
+    out = corotating_blackouts(temporal, obs)
+    empty = ~obs.any(axis=1)
+    np.testing.assert_array_equal(out[~empty], temporal[~empty])
+    assert np.isnan(out[:, 19]).all()
+    np.testing.assert_allclose(out[empty][:, :19], corotating_spline(temporal[:, :19], empty), atol=1e-12)
+    err = lambda y: np.linalg.norm(y[empty][:, :19] - x[empty][:, :19], axis=2).mean()  # noqa: E731
+    assert err(out) < 0.5 * err(temporal), (err(out), err(temporal))

@@ -30,7 +30,10 @@ __all__ = ["corotating_spline", "DEFAULT_NEIGHBOURS"]
 DEFAULT_NEIGHBOURS = 8
 """Partners per marker's cluster. Fewer follow one segment but measure its turn from a few,
 partly non-rigid markers; many mix segments that turn differently (with every marker, the
-whole body is one rotation). Chosen on ``eval --protocol blackout`` (CMU 85_02, 135_02)."""
+whole body is one rotation). Chosen on ``eval --protocol blackout`` (CMU 85_02, 135_02: 4 to 10
+all beat the room spline there) for full-body marker sets of about 40 markers; with fewer than
+about 9 markers per segment the partners straddle segments that turn differently, and the
+co-rotating spline can lose to the room spline (``tests/test_corotating.py``)."""
 
 
 CHUNK_ELEMENTS = 2_000_000
