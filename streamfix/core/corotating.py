@@ -25,15 +25,22 @@ from .interpolate import spline_operator
 from .pca_normalise import kabsch
 from .rigid_pairs import pair_distance_spread, rigid_neighbours
 
-__all__ = ["corotating_spline", "DEFAULT_NEIGHBOURS"]
+__all__ = ["corotating_spline", "neighbour_count", "DEFAULT_NEIGHBOURS"]
 
 DEFAULT_NEIGHBOURS = 8
-"""Partners per marker's cluster. Fewer follow one segment but measure its turn from a few,
-partly non-rigid markers; many mix segments that turn differently (with every marker, the
-whole body is one rotation). Chosen on ``eval --protocol blackout`` (CMU 85_02, 135_02: 4 to 10
-all beat the room spline there) for full-body marker sets of about 40 markers; with fewer than
-about 9 markers per segment the partners straddle segments that turn differently, and the
-co-rotating spline can lose to the room spline (``tests/test_corotating.py``)."""
+"""The most partners per marker's cluster (:func:`neighbour_count`)."""
+
+
+def neighbour_count(n_markers: int) -> int:
+    """Partners per marker's cluster: a fifth of the markers, 2 to :data:`DEFAULT_NEIGHBOURS`.
+
+    Few partners follow one segment but measure its turn from a few, partly non-rigid
+    markers; many straddle segments that turn differently (with every marker, the whole body
+    is one rotation), and how many a segment holds grows with the marker set. Measured on
+    ``eval --protocol blackout``'s CMU takes (41 markers: 4 to 10 partners all beat the room
+    spline, 8 the most) and on random subsets of their markers: with 12 or 16 markers, 8
+    partners lost to the room spline and 2-4 beat it; with 20-28, 4-8 beat it."""
+    return int(np.clip(int(n_markers) // 5, 2, DEFAULT_NEIGHBOURS))
 
 
 CHUNK_ELEMENTS = 2_000_000
@@ -42,13 +49,14 @@ frames, 41 markers and 9 per cluster: 0.15 M), so a stack of hundreds stays smal
 
 
 def corotating_spline(window: np.ndarray, missing_rows: np.ndarray, neighbours: np.ndarray | None = None,
-                      *, n_neighbours: int = DEFAULT_NEIGHBOURS, spline: np.ndarray | None = None) -> np.ndarray:
+                      *, n_neighbours: int | None = None, spline: np.ndarray | None = None) -> np.ndarray:
     """The missing rows of ``window`` ``(m, J, 3)``, or of each of a stack ``(K, m, J, 3)``
     (every marker finite on the other rows, at least 4 of them), splined in co-rotating
     frames (module doc).
 
-    ``neighbours`` ``(J, k)``: each marker's rigid partners (None: the ``n_neighbours``
-    most rigid over the present rows, of the first window of a stack). ``spline``: the
+    ``neighbours`` ``(J, k)``: each marker's rigid partners (None: the ``n_neighbours``,
+    default :func:`neighbour_count`, most rigid over the present rows, of the first window
+    of a stack). ``spline``: the
     :func:`~streamfix.core.interpolate.spline_operator` of these present / missing rows when
     the caller has it. Returns ``(n_missing, J, 3)`` (``(K, n_missing, J, 3)``); with fewer
     than 2 partners per marker (no rotation to measure), the room spline.
@@ -62,7 +70,8 @@ def corotating_spline(window: np.ndarray, missing_rows: np.ndarray, neighbours: 
     P = x[:, ~miss]                                           # (K, p, J, 3) present frames
     K, p, J, _ = P.shape
     if neighbours is None:
-        neighbours = rigid_neighbours(pair_distance_spread(P[0]), n_neighbours)
+        k = neighbour_count(J) if n_neighbours is None else n_neighbours
+        neighbours = rigid_neighbours(pair_distance_spread(P[0]), k)
     nb = np.asarray(neighbours, dtype=np.intp).reshape(J, -1)
     if nb.shape[1] < 2 or not miss.any():
         out = np.einsum("qp,kpjc->kqjc", S, P)

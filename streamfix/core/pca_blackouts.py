@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .corotating import DEFAULT_NEIGHBOURS, corotating_spline
+from .corotating import corotating_spline, neighbour_count
 from .interpolate import spline_operator
 from .pca_training import DEFAULT_ENERGY, _as_training, _observed_mask, _runs, _solve_sym, choose_rank
 from .rigid_pairs import pair_distance_spread, rigid_neighbours
@@ -208,7 +208,7 @@ def fill_blackouts(
                 base = None
                 if corotating:  # the blend weight is chosen against what it blends with
                     base = corotating_spline(Aw.reshape(len(Aw), m, J, 3), miss_rows,
-                                             rigid_neighbours(bases["spread"], DEFAULT_NEIGHBOURS))
+                                             rigid_neighbours(bases["spread"], neighbour_count(J)))
                     base = base.reshape(len(Aw), int(miss_rows.sum()), -1)
                 bases[key_t] = _choose_r_tau(V, miss_rows, Aw, baseline=base)
             r_cv, tau, alpha = bases[key_t]
@@ -222,7 +222,7 @@ def fill_blackouts(
             S = spline_operator(rows[~miss_rows], rows[miss_rows])
             if corotating:
                 ok = np.flatnonzero(present_ok)
-                nb = rigid_neighbours(bases["spread"][np.ix_(ok, ok)], DEFAULT_NEIGHBOURS)
+                nb = rigid_neighbours(bases["spread"][np.ix_(ok, ok)], neighbour_count(len(ok)))
                 spline = corotating_spline(x[blk][:, ok], miss_rows, nb, spline=S).reshape(len(S), -1)
             else:
                 spline = S @ cols[~miss_rows][:, okc]
