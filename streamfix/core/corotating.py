@@ -3,7 +3,7 @@ interpolated in the frame of its most rigid neighbours, not in the room.
 
 Not in the papers. A cubic spline through each marker's room coordinates cuts the corner
 of a turning segment (a marker 10 cm from the segment's centre, turning through 90 degrees
-in a gap, is splined along the chord): rigid distances shrink and every marker of the
+in a gap, is splined inside its arc): rigid distances shrink and every marker of the
 segment is misplaced. Here marker ``i`` and its ``n_neighbours`` most rigid partners
 (:func:`~streamfix.core.rigid_pairs.rigid_neighbours`) form a cluster; on every present
 frame the cluster's centroid ``c_t`` and rotation ``R_t`` (Kabsch, onto the cluster's
@@ -13,7 +13,7 @@ marker's non-rigid remainder (skin, a wand) is splined in the cluster's frame. P
 frames are reproduced exactly; a cluster that does not turn gives the room spline.
 
 Why a cluster per marker rather than segments: no segment table is needed for an unknown
-marker set, and a marker whose partners straddle two segments still gets their mean turn.
+marker set; how many partners a cluster takes is :func:`neighbour_count`'s.
 Pure functions: arrays in, arrays out; positions in metres, rows are frames.
 """
 from __future__ import annotations
