@@ -34,8 +34,9 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     limb keeps its crossfade at every hand-over. Likewise a gap's sample that the window saw
     end (the joint is observed later in the window, :func:`closed_gaps`) drops what older
     windows blended there while the gap was still open: they could only extrapolate it, and
-    with ``serve``'s 0.5 s lookahead a blackout shorter than the lookahead kept 1.4-2x
-    the error of a spline through both ends (``eval --protocol blackout``, ``streamfix_serve``).
+    on ``serve``'s 0.5 s lookahead a blackout shorter than the lookahead kept much of their
+    error (``eval --protocol blackout``'s ``streamfix_serve`` against the spline through
+    both ends, ``benchmarks/results/pca.json``).
     """
     lo = max(job.start, body.final_upto, min(job.end - cfg.lookahead - 1, prev_end))
     if lo >= job.end:
