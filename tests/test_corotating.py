@@ -205,3 +205,20 @@ def test_the_partner_count_follows_the_marker_count():
     err = lambda y: np.linalg.norm(y - x[miss], axis=2).mean()  # noqa: E731
     assert err(corotating_spline(x, miss)) < 0.75 * err(_room_spline(x, miss))
     assert err(corotating_spline(x, miss, n_neighbours=8)) > err(_room_spline(x, miss))
+
+
+def test_pair_spread_is_computed_in_frame_chunks_as_in_one_pass(monkeypatch):
+    """A long take's pair distances are measured a chunk of frames at a time (memory): the
+    same spread as the whole take at once, missing samples left out."""
+    import streamfix.core.rigid_pairs as rp
+
+    x = _two_segments() + np.random.default_rng(3).normal(scale=1e-3, size=(240, 12, 3))
+    obs = np.random.default_rng(4).random((240, 12)) > 0.1
+    x[~obs] = np.nan
+    ia, ib = np.triu_indices(12, 1)
+    d = np.linalg.norm(x[:, ia] - x[:, ib], axis=2)
+    expected = np.array([np.nanstd(d[:, p]) for p in range(len(ia))])
+    monkeypatch.setattr(rp, "SPREAD_CHUNK_FRAMES", 7)
+    spread = rp.pair_distance_spread(x, obs)
+    np.testing.assert_allclose(spread[ia, ib], expected, rtol=1e-9)
+    assert np.isinf(np.diag(spread)).all()
