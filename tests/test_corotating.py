@@ -1,6 +1,8 @@
 """Blackouts splined in co-rotating frames (streamfix.core.corotating) and the blackout
 fill's fallbacks: exact where the room spline is exact, better where segments turn, on
-synthetic rigid bodies and on real marker takes (CMU, UI-PRMD's Vicon)."""
+synthetic rigid bodies and on real marker takes (CMU, UI-PRMD's Vicon). Also the rigid
+pairs they stand on (streamfix.core.rigid_pairs): spreads measured in frame chunks, and the
+pair projection against a per-frame reference."""
 from __future__ import annotations
 
 import numpy as np
@@ -176,7 +178,7 @@ def test_serve_bridge_splines_marker_blackouts_in_co_rotating_frames():
     """The streaming bridge's ``time`` source on a marker set: whole-frame blackouts from
     the co-rotating spline, other samples as the room spline left them, a marker never
     seen left alone."""
-    from streamfix.streaming.bridging import corotating_blackouts
+    from streamfix.core.corotating import corotating_blackouts
 
     x = _two_segments(per_segment=10)                         # 20 markers
     obs = np.ones(x.shape[:2], dtype=bool)

@@ -25,7 +25,7 @@ from .interpolate import spline_operator
 from .pca_normalise import kabsch
 from .rigid_pairs import pair_distance_spread, rigid_neighbours
 
-__all__ = ["corotating_spline", "neighbour_count", "DEFAULT_NEIGHBOURS"]
+__all__ = ["corotating_spline", "corotating_blackouts", "neighbour_count", "DEFAULT_NEIGHBOURS"]
 
 DEFAULT_NEIGHBOURS = 8
 """The most partners per marker's cluster (:func:`neighbour_count`)."""
@@ -81,6 +81,22 @@ def corotating_spline(window: np.ndarray, missing_rows: np.ndarray, neighbours: 
     chunk = max(1, CHUNK_ELEMENTS // (p * J * cluster.shape[1] * 3))
     out = np.concatenate([_corotating(P[i:i + chunk], cluster, near, S) for i in range(0, K, chunk)])
     return out[0] if single else out
+
+
+def corotating_blackouts(temporal: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """``temporal`` ``(T, J, 3)`` m (each joint's spline through ``observed``, complete
+    elsewhere) with its whole-frame blackouts splined in co-rotating frames instead
+    (:func:`corotating_spline`): for marker sets, where a spline
+    through room coordinates cuts a turning segment's corner. Markers never seen keep theirs."""
+    empty = ~np.asarray(observed, dtype=bool).any(axis=1)
+    seen = np.isfinite(temporal[~empty]).all(axis=(0, 2))
+    if not empty.any() or int((~empty).sum()) < 4 or int(seen.sum()) < 3:
+        return temporal
+    out = temporal.copy()
+    rows = out[empty]
+    rows[:, seen] = corotating_spline(temporal[:, seen], empty)
+    out[empty] = rows
+    return out
 
 
 def _corotating(P: np.ndarray, cluster: np.ndarray, near: int, S: np.ndarray) -> np.ndarray:

@@ -113,8 +113,8 @@ class Body:
         self.smooth = np.zeros((cap, J, 3))  # the blended mean smoothed over time (overlap_add.smooth_output)
         self.smooth_for = np.full(cap, -1, dtype=np.int64)  # the timeline frame each smooth row holds
         self.noise = np.zeros((cap, J))  # the windows' noise_share, blended like the positions
-        self.released_only = np.zeros((cap, J), dtype=bool)  # blended from windows that released it only
-        self.closed_only = np.zeros((cap, J), dtype=bool)  # a gap's fill blended from windows that saw it end only
+        # blended only from windows that knew more than older ones (overlap_add.blend_window)
+        self.informed_only = np.zeros((cap, J), dtype=bool)
         self.live = np.full((cap, J, 3), np.nan)
         self.live_rec = np.zeros((cap, J), dtype=bool)
         self.conf = np.zeros((cap, J))
@@ -157,8 +157,7 @@ class Body:
         them, frame % cap) for new frames; their old frames were finalised long ago."""
         for acc in (self.mean, self.den, self.recw, self.noise):
             acc[rows] = 0.0
-        self.released_only[rows] = False
-        self.closed_only[rows] = False
+        self.informed_only[rows] = False
 
     def store_present(self, rows, last: int, raw, conf, valid, live, live_rec) -> None:
         """Record present frames in timeline rows ``rows``: the sensor's samples as the

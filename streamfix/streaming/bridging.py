@@ -26,7 +26,8 @@ Where the fill comes from (first that applies, per sample)
 0. ``time``: a blackout closed on both sides (the clean history counts as the near side),
    on a skeleton the prior does not know: each joint's cubic spline through the history and
    the window (:func:`closed_blackout_mask`); on a marker set (no bones) each marker's spline
-   in the frame of its most rigid neighbours (:func:`corotating_blackouts`);
+   in the frame of its most rigid neighbours
+   (:func:`streamfix.core.corotating.corotating_blackouts`);
 1. ``pca``: :class:`streamfix.core.pca_fill.PcaGapFiller` trained on the body's
    clean history (observed samples only; recovered ones are NaN), when the history
    has ``>= MIN_HISTORY_S`` (3 s) of frames where every joint to fill was observed;
@@ -303,24 +304,6 @@ def closed_blackout_mask(observed: np.ndarray) -> np.ndarray:
     return empty[:, None] & same_run & seen_before & seen_after
 
 
-def corotating_blackouts(temporal: np.ndarray, observed: np.ndarray) -> np.ndarray:
-    """``temporal`` ``(T, J, 3)`` m (each joint's spline through ``observed``, complete
-    elsewhere) with its whole-frame blackouts splined in co-rotating frames instead
-    (:func:`streamfix.core.corotating.corotating_spline`): for marker sets, where a spline
-    through room coordinates cuts a turning segment's corner. Markers never seen keep theirs."""
-    empty = ~np.asarray(observed, dtype=bool).any(axis=1)
-    seen = np.isfinite(temporal[~empty]).all(axis=(0, 2))
-    if not empty.any() or int((~empty).sum()) < 4 or int(seen.sum()) < 3:
-        return temporal
-    from ..core.corotating import corotating_spline
-
-    out = temporal.copy()
-    rows = out[empty]
-    rows[:, seen] = corotating_spline(temporal[:, seen], empty)
-    out[empty] = rows
-    return out
-
-
 def _with_recovered(res: Any, mask: np.ndarray, bridged: dict | None = None) -> WindowOutput:
     """The solver's result with ``mask`` ``(T, J)`` added to its recovered joints (and
     ``bridged`` counts, when given, in place of its own)."""
@@ -474,6 +457,8 @@ class BridgingWindowSolver:
 
             temporal, _ = interpolate_spline(np.where(ext_obs[..., None], ext, np.nan), ext_obs)
             if bones is not None and len(bones) == 0:
+                from ..core.corotating import corotating_blackouts
+
                 temporal = corotating_blackouts(temporal, ext_obs)
             use = closed & np.isfinite(temporal[C:]).all(axis=2)
             out[use] = temporal[C:][use]

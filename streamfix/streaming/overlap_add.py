@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.interpolate import neighbour_observations
 from .bodies import Body, Job
 from .blending import FILL_DISTANCE_M, crossfade_frames, handover_weights, smooth_blended
 from .config import EngineConfig
@@ -26,17 +27,17 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     (``prev_end <= n``). This makes each frame's value independent of when its
     windows finished (threaded and synchronous modes agree).
 
-    A sample the window released as the sensor's frozen guess (``job.released``) drops what
-    older windows that did not release it blended there: they saw a shorter stretch of the
-    frozen run, too short to judge, and kept the frozen pose as a measurement (on
-    ``serve``'s 0.5 s lookahead, the first half second of every freeze). Windows that
-    released it blend with each other as usual (``body.released_only``), so a released
-    limb keeps its crossfade at every hand-over. Likewise a gap's sample that the window saw
-    end (the joint is observed later in the window, :func:`closed_gaps`) drops what older
-    windows blended there while the gap was still open: they could only extrapolate it, and
-    on ``serve``'s 0.5 s lookahead a blackout shorter than the lookahead kept much of their
-    error (``eval --protocol blackout``'s ``streamfix_serve`` against the spline through
-    both ends, ``benchmarks/results/pca.json``).
+    A window that knows more about a sample than the older windows did drops what they
+    blended there, and such windows blend with each other as usual (``body.informed_only``,
+    so the sample keeps its crossfade at every hand-over). It knows more when it released
+    the sample as the sensor's frozen guess (``job.released``): the older windows saw a
+    shorter stretch of the frozen run, too short to judge, and kept the frozen pose as a
+    measurement (on ``serve``'s 0.5 s lookahead, the first half second of every freeze); or
+    when it saw the sample's gap end (the joint observed later in the window,
+    :func:`closed_gaps`): the older windows could only extrapolate it, and on ``serve``'s
+    0.5 s lookahead a blackout shorter than the lookahead kept much of their error
+    (``eval --protocol blackout``'s ``streamfix_serve`` against the spline through both ends,
+    ``benchmarks/results/pca.json``).
     """
     lo = max(job.start, body.final_upto, min(job.end - cfg.lookahead - 1, prev_end))
     if lo >= job.end:
@@ -48,16 +49,16 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     rows = np.arange(lo, job.end) % body.cap
     finite = np.isfinite(x).all(axis=2)
     wj = np.where(finite, w[:, None], 0.0)  # (n, J)
-    released = finite & (False if job.released is None else job.released[lo - job.start:])
+    informed = closed_gaps(body.valid[rows])  # the joint seen again by the window's end
+    if job.released is not None:
+        informed |= job.released[lo - job.start:]
+    informed &= finite
     before = body.den[rows]
-    fresh = released & ~body.released_only[rows]  # older windows that kept the sample: dropped
-    closed = finite & closed_gaps(body.valid[np.arange(job.start, job.end) % body.cap])[lo - job.start:]
-    fresh |= closed & ~body.closed_only[rows]  # older windows that saw the gap still open: dropped
-    body.closed_only[rows] = np.where(finite, closed, body.closed_only[rows])
+    fresh = informed & ~body.informed_only[rows]  # older windows that knew less: dropped
     if fresh.any():
         before = np.where(fresh, 0.0, before)
         body.recw[rows] = np.where(fresh, 0.0, body.recw[rows])
-    body.released_only[rows] = np.where(finite, released, body.released_only[rows])
+    body.informed_only[rows] = np.where(finite, informed, body.informed_only[rows])
     den = before + wj
     frac = np.divide(wj, den, out=np.zeros_like(wj), where=den > 0)
     mean = body.mean[rows]
@@ -72,9 +73,7 @@ def closed_gaps(valid: np.ndarray) -> np.ndarray:
     """``(T, J)`` bool: samples without a sensor value whose joint has one later in the
     window (``valid`` ``(T, J)``): gaps the window saw end, which it bridges from both sides."""
     v = np.asarray(valid, dtype=bool)
-    after = np.zeros_like(v)
-    after[:-1] = np.flipud(np.logical_or.accumulate(np.flipud(v[1:]), axis=0))
-    return after & ~v
+    return ~v & (neighbour_observations(v)[1] < len(v))
 
 
 def smooth_output(body: Body, lo: int, end: int, taps: np.ndarray, fill_taps: np.ndarray) -> None:
