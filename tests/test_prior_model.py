@@ -94,6 +94,31 @@ def test_card_matches_the_shipped_graphs(prior):
     assert z.shape == (3, l) and prior.decode(z).shape == (3, t, j, 3)
 
 
+def test_shipped_jacobian_graph_runs_int8_tangents_within_a_few_percent_of_the_decoder(prior):
+    """The card says the Jacobian graph's tangent products are 8-bit (``train.quantize_tangent_products``) and
+    the graph is that: its dD/dz rows agree with central differences of the float32 decoder graph to a few per
+    cent, and its D(z) is the decoder's."""
+    import onnx
+
+    entry = json.loads(DEFAULT_CARD.read_text())["files"]["decoder_jacobian"]
+    graph = onnx.load(str(DEFAULT_CARD.parent / entry["file"])).graph
+    assert entry.get("tangent_products") == "int8"
+    assert sum(n.op_type == "MatMulInteger" for n in graph.node) == prior.card["levels"]
+    rng = np.random.default_rng(4)
+    t, j, l = prior.window, prior.n_joints, prior.latent_size
+    step = prior.jacobian_frame_step
+    rows = (np.arange(t * j * 3).reshape(t, -1)[::step]).ravel()
+    z = prior.encode(rng.normal(0, 0.2, (2, t, j, 3)), np.ones((2, t, j))).astype(np.float64)
+    x, jac = prior.decode_with_jacobian(z)
+    np.testing.assert_allclose(x, prior.decode(z), atol=1e-5, rtol=0)
+    h = 1e-3  # the decoder is piecewise linear (ReLU): central differences are exact but for the kinks they cross
+    eye = np.eye(l) * h
+    fd = np.stack([(prior.decode(zb + eye).reshape(l, -1) - prior.decode(zb - eye).reshape(l, -1)) / (2 * h)
+                   for zb in z])[:, :, rows]
+    err = np.linalg.norm(jac - fd, axis=(1, 2)) / np.linalg.norm(fd, axis=(1, 2))
+    assert (err < 0.05).all(), err
+
+
 def test_a_tampered_graph_is_refused(tmp_path):
     card = json.loads(DEFAULT_CARD.read_text())
     for role in ("encoder", "decoder", "decoder_jacobian"):

@@ -96,7 +96,7 @@ CHORD_DAMPING = 0.3
 # mirrored reconstruction mirrored back is averaged with the direct one. The model saw every training
 # window both ways, but it is not exactly symmetric; the two reconstructions err differently on a pose
 # it knows less well, and their mean errs less (held-out cells, benchmarks/bench_prior.py). The mirror
-# images ride in the same batch, so the cost is one larger onnxruntime call, not two.
+# images ride in the same batch as the windows (the encoder and decoder run once for both).
 MIRROR_ENSEMBLE = True
 
 
@@ -263,7 +263,7 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
     wins, masks, starts = cut_windows(xr, obr, w_len, w_len // 2, fill=0.0)
     mirror = prior.mirror if MIRROR_ENSEMBLE else None
     n_win = wins.shape[0]
-    if mirror is not None:  # the mirror images ride in the same batch (one onnxruntime call)
+    if mirror is not None:  # the mirror images ride in the same batch
         m_wins, m_masks = mirrored(wins, masks, mirror)
         wins, masks = np.concatenate([wins, m_wins]), np.concatenate([masks, m_masks])
     if method == "latent":

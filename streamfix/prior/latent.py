@@ -10,7 +10,9 @@ Jr = A [dD/dz, dD/dc], each step solves
 
     (Jr^T Jr + lambda diag(Jr^T Jr) + eps I) delta = -Jr^T r
 
-The exact dD/dz comes from the exported ``decoder_jacobian`` graph: one batched
+dD/dz comes from the exported ``decoder_jacobian`` graph (exact, or with its tangent
+products in 8-bit integers as the shipped graph: a few per cent of rounding, which steers the
+step only, since a step is accepted on the float32 cost): one batched
 onnxruntime call per iteration returns D(z), the residual, its squared norm and the
 blocks of Jr^T Jr and Jr^T r for every window of the batch (no matrix products in
 numpy: a multi-threaded BLAS stalls on a busy machine). Those blocks are summed over

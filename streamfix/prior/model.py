@@ -22,7 +22,8 @@ Tensors at the ONNX boundary are frame-major, as the rest of streamfix:
 layer by layer (tangent of a linear layer = weight x tangent; of ReLU = tangent x
 [pre-activation > 0]), so that one ONNX call returns D(z) and the exact Jacobian
 rows dD/dz of every ``JACOBIAN_FRAME_STEP``-th frame (B, L, T/step*J*3) for the
-Gauss-Newton solve of Eq. (1), without torch at run time. The exported graphs use the
+Gauss-Newton solve of Eq. (1), without torch at run time (the exported graph runs the
+tangents' products in 8-bit integers, ``JACOBIAN_INT8_TANGENTS``). The exported graphs use the
 time-major MatMul form of the transposed convolutions (``DecoderMatmul``), the same
 values as the convolutional ``Decoder`` used in training.
 """
@@ -32,7 +33,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["TemporalAutoencoder", "Encoder", "Decoder", "DecoderMatmul", "DecoderJacobian", "JACOBIAN_FRAME_STEP"]
+__all__ = ["TemporalAutoencoder", "Encoder", "Decoder", "DecoderMatmul", "DecoderJacobian", "JACOBIAN_FRAME_STEP",
+           "JACOBIAN_INT8_TANGENTS"]
 
 
 class Encoder(nn.Module):
@@ -111,6 +113,11 @@ def _deconv_even_frames(h: torch.Tensor, deconv: nn.ConvTranspose1d, frames: int
 #: are summed over every second frame (x2), which halves the last layer's tangents; at 30 Hz neighbouring
 #: frames carry the same information and the held-out D(z*) does not change (benchmarks/bench_prior.py).
 JACOBIAN_FRAME_STEP = 2
+
+#: The exported Jacobian graph runs the products of the tangents with each layer's weights (about nine
+#: tenths of its cost) in 8-bit integers (``train.quantize_tangent_products``): the Jacobian only steers the
+#: Levenberg-Marquardt step, which is accepted on the float32 cost, and D(z) itself stays float32.
+JACOBIAN_INT8_TANGENTS = True
 
 
 class DecoderMatmul(nn.Module):

@@ -6,8 +6,10 @@ A model is a JSON *card* beside three ONNX graphs (see ``streamfix/prior/models/
   ``mask`` (B, T, J) 0/1; output ``z`` (B, L);
 * ``decoder``: input ``z`` (B, L); output ``x`` (B, T, J, 3) normalised coordinates;
 * ``decoder_jacobian``: inputs ``z`` (B, L), ``w`` (B, N) 0/1, ``y`` (B, N), ``c`` (B, 3)
-  (N = T*J*3); outputs ``x``, ``jac`` (B, L, N / s) the exact dD/dz rows of every s-th frame
-  (s = the card's ``files.decoder_jacobian.frame_step``, 1 when absent), and the
+  (N = T*J*3); outputs ``x``, ``jac`` (B, L, N / s) the dD/dz rows of every s-th frame
+  (s = the card's ``files.decoder_jacobian.frame_step``, 1 when absent; exact, or within a few
+  per cent where ``files.decoder_jacobian.tangent_products`` is ``"int8"``: the tangent
+  products in 8-bit integers, ``train.quantize_tangent_products``), and the
   Levenberg-Marquardt normal-equation terms ``r``, ``cost``, ``gram``, ``jtr``, ``h_zc``
   used by the latent-space fit (``streamfix.prior.latent``; see ``train.add_gram_output``).
 
@@ -141,6 +143,13 @@ class Prior:
         return int(self.card["files"]["decoder_jacobian"].get("frame_step", 1))
 
     @property
+    def jacobian_per_window(self) -> bool:
+        """True when the Jacobian graph runs its tangent products in 8-bit integers (the card's
+        ``tangent_products`` "int8"): their scale is set per call, so each window gets a call of its own
+        and its fit never depends on which other windows share its batch."""
+        return self.card["files"]["decoder_jacobian"].get("tangent_products") == "int8"
+
+    @property
     def root_index(self) -> int:
         return int(self.card["normalisation"]["root_index"])
 
@@ -174,13 +183,13 @@ class Prior:
         return self._decoder.run(None, {"z": np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)})[0]
 
     def decode_with_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """D(z) (B, T, J, 3) and the exact dD/dz rows (B, L, T'*J*3) of every ``jacobian_frame_step``-th frame
-        (T' = T / step), float32, in one call."""
+        """D(z) (B, T, J, 3) and the dD/dz rows (B, L, T'*J*3) of every ``jacobian_frame_step``-th frame
+        (T' = T / step; int8-rounded tangents in a card whose graph says so), float32, in one call."""
         z = np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)
         b, n = z.shape[0], self.window * self.n_joints * 3
         feeds = {"z": z, "w": np.zeros((b, n), np.float32), "y": np.zeros((b, n), np.float32),
                  "c": np.zeros((b, 3), np.float32)}
-        x, jac = self._jacobian.run(["x", "jac"], feeds)
+        x, jac = self._run_jacobian(["x", "jac"], feeds)
         return x, jac
 
     def normal_equations(
@@ -201,7 +210,15 @@ class Prior:
             "c": np.asarray(c, dtype=np.float32),
         }
         names = ["x", "r", "cost", "gram", "jtr", "h_zc"] + (["jac"] if with_jacobian else [])
-        return dict(zip(names, self._jacobian.run(names, feeds)))
+        return dict(zip(names, self._run_jacobian(names, feeds)))
+
+    def _run_jacobian(self, names: list[str], feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        """The Jacobian graph's ``names`` outputs for a batch: one call, or one per window (``jacobian_per_window``)."""
+        b = len(feeds["z"])
+        if b == 1 or not self.jacobian_per_window:
+            return self._jacobian.run(names, feeds)
+        parts = [self._jacobian.run(names, {k: v[i:i + 1] for k, v in feeds.items()}) for i in range(b)]
+        return [np.concatenate(p) for p in zip(*parts)]
 
     def as_batch(self, window: np.ndarray, observed: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, bool]:
         """Validate a (T, J, 3) window + (T, J) mask, or batches of them, for this model.
