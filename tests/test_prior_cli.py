@@ -173,3 +173,35 @@ def test_rescore_rewrites_the_held_out_scores_of_an_exported_card(tmp_path, shar
                            "--rescore", str(card_path)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2
     assert "no_such_take" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_int8_jacobian_converts_an_exported_card_once_and_refuses_a_mismatched_graph(tmp_path, shared_data):
+    """``train-prior --int8-jacobian CARD``: the shipped card is int8 already (the graph stays as it is, the card
+    is rescored); a graph that does not match its card is refused, not re-hashed."""
+    import json
+    import shutil
+
+    from streamfix.prior.runtime import DEFAULT_CARD, Prior
+
+    model = tmp_path / "model"
+    model.mkdir()
+    for f in DEFAULT_CARD.parent.glob("canonical.*"):
+        shutil.copy(f, model / f.name)
+    card_path = model / "canonical.json"
+    card = json.loads(card_path.read_text())
+    card["training"]["held_out"] = ["131_02"]  # one held-out take keeps the test short
+    card_path.write_text(json.dumps(card))
+    cmd = [sys.executable, "-m", "streamfix", "train-prior", "--data", str(shared_data), "--int8-jacobian", str(card_path)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    new = json.loads(card_path.read_text())
+    assert new["files"] == card["files"] and new["files"]["decoder_jacobian"]["tangent_products"] == "int8"
+    assert {r["take"] for r in new["held_out_scores"]} == {"131_02"}
+    Prior.load(card_path)
+    graph = model / card["files"]["decoder_jacobian"]["file"]
+    graph.write_bytes(graph.read_bytes() + b"\0")
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "does not match" in proc.stderr and "Traceback" not in proc.stderr
+    assert json.loads(card_path.read_text())["files"] == card["files"]
+    proc = subprocess.run(cmd + ["--rescore", str(card_path)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "not both" in proc.stderr

@@ -164,6 +164,25 @@ def test_tangent_products_are_found_by_structure_and_quantised_once(tmp_path_fac
     assert sum(n.op_type == "MatMulInteger" for n in onnx.load(str(path)).graph.node) == 2
 
 
+def test_quantize_card_jacobian_rewrites_the_card_of_a_float_export(tmp_path_factory):
+    """An exported card with the float Jacobian graph gets the int8 one, its hash and the flag; D(z) unchanged."""
+    import json
+
+    from streamfix.prior.runtime import sha256_file
+    from streamfix.prior.train import quantize_card_jacobian
+
+    _, sessions, files, out_dir = _export(tmp_path_factory, int8_tangents=False)
+    card_path = out_dir / "tiny.json"
+    card_path.write_text(json.dumps({"files": files}))
+    entry = quantize_card_jacobian(card_path)
+    assert json.loads(card_path.read_text())["files"]["decoder_jacobian"] == entry
+    assert entry["tangent_products"] == "int8" and entry["sha256"] == sha256_file(out_dir / entry["file"])
+    assert entry["sha256"] != files["decoder_jacobian"]["sha256"]
+    feeds = _jacobian_feeds(5)
+    x_new = _session(out_dir / entry["file"], 1).run(["x"], feeds)[0]
+    np.testing.assert_allclose(x_new, sessions["decoder_jacobian"].run(["x"], feeds)[0], atol=1e-5, rtol=0)
+
+
 def test_reexport_gives_matmul_graphs_with_the_same_outputs(tmp_path):
     """A card whose decoder graphs are the convolutional export gets MatMul-form graphs with the same outputs."""
     import json

@@ -20,6 +20,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rescore", metavar="CARD",
                         help="train nothing: score the held-out takes of an exported model's card (a canonical.json) "
                              "again with this version's inference and rewrite the card and its .md")
+    parser.add_argument("--int8-jacobian", metavar="CARD",
+                        help="train nothing: run an exported card's decoder-Jacobian tangent products in 8-bit "
+                             "integers, as export does (about half the latent fit's cost; cards exported by older "
+                             "versions have them in float32), then rescore it as --rescore does")
     parser.add_argument("--epochs", type=int, default=_DEFAULTS["epochs"], help="epochs of --steps batches")
     parser.add_argument("--steps", type=int, default=_DEFAULTS["steps_per_epoch"], help="batches per epoch")
     parser.add_argument("--seed", type=int, default=0, help="seed for weights, windows, augmentation and masks (default 0)")
@@ -56,13 +60,19 @@ def run(args: argparse.Namespace) -> int:
     if not data.is_dir():
         print(f"train-prior: data directory {data} not found", file=sys.stderr)
         return 2
-    if args.rescore:
-        from streamfix.prior.train import rescore_card
+    if args.rescore and args.int8_jacobian:
+        print("train-prior: give --rescore CARD or --int8-jacobian CARD (which rescores too), not both", file=sys.stderr)
+        return 2
+    if args.rescore or args.int8_jacobian:
+        from streamfix.prior.train import quantize_card_jacobian, rescore_card
 
+        option, card = ("--int8-jacobian", args.int8_jacobian) if args.int8_jacobian else ("--rescore", args.rescore)
         try:
-            rescore_card(args.rescore, data, log=lambda s: print(s, flush=True))
+            if args.int8_jacobian:
+                quantize_card_jacobian(card)
+            rescore_card(card, data, log=lambda s: print(s, flush=True))
         except (OSError, ValueError, KeyError) as exc:
-            print(f"train-prior --rescore {args.rescore}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            print(f"train-prior {option} {card}: {type(exc).__name__}: {exc}", file=sys.stderr)
             return 2
         return 0
     if not args.out:

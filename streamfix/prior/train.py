@@ -406,11 +406,16 @@ def quantize_card_jacobian(card_path: str | Path) -> dict:
     """``quantize_tangent_products`` on an exported card's decoder-Jacobian graph (the shipped model's
     graphs fold their weights, so ``reexport_decoder_graphs`` cannot redo them); rewrites the card's
     hash and its rendered ``.md``. Returns the graph's new ``files`` entry. Re-score the card after
-    (``rescore_card``): its held-out D(z*) rows come from the graph."""
+    (``rescore_card``): its held-out D(z*) rows come from the graph. A graph that does not match the
+    card's hash is refused (ValueError), not re-hashed."""
     card_path = Path(card_path)
     card = json.loads(card_path.read_text())
     entry = card["files"]["decoder_jacobian"]
-    _quantize_entry(card_path.parent / entry["file"], entry)
+    path = card_path.parent / entry["file"]
+    digest = sha256_file(path)
+    if digest != entry["sha256"]:
+        raise ValueError(f"{path}: SHA-256 {digest} does not match the card's {entry['sha256']}")
+    _quantize_entry(path, entry)
     card_path.write_text(json.dumps(card, indent=1))
     if card_path.with_suffix(".md").is_file():
         write_card_markdown(card, card_path.with_suffix(".md"))
