@@ -132,14 +132,13 @@ def test_source_shares_decide_where_batches_come_from():
     assert source_weights(takes, {"bvh": 0.0, "uiprmd_vicon": 1.0})[0] == 0.0
 
 
-def test_rescore_rewrites_the_held_out_scores_of_an_exported_card(tmp_path, shared_data):
+def _shipped_card_copy(tmp_path):
+    """The shipped model copied to ``tmp_path/model`` with one held-out take (keeps a rescore short):
+    (directory, card path, card dict; the card not yet written back)."""
     import json
     import shutil
 
-    from streamfix.evaluation.occlusion import score_prior_on_takes
-    from streamfix.io.prior_takes import canonical_takes
-    from streamfix.prior.data import split_takes
-    from streamfix.prior.runtime import DEFAULT_CARD, Prior
+    from streamfix.prior.runtime import DEFAULT_CARD
 
     model = tmp_path / "model"
     model.mkdir()
@@ -147,7 +146,19 @@ def test_rescore_rewrites_the_held_out_scores_of_an_exported_card(tmp_path, shar
         shutil.copy(f, model / f.name)
     card_path = model / "canonical.json"
     card = json.loads(card_path.read_text())
-    card["training"]["held_out"] = ["131_02"]  # one held-out take keeps the test short
+    card["training"]["held_out"] = ["131_02"]
+    return model, card_path, card
+
+
+def test_rescore_rewrites_the_held_out_scores_of_an_exported_card(tmp_path, shared_data):
+    import json
+
+    from streamfix.evaluation.occlusion import score_prior_on_takes
+    from streamfix.io.prior_takes import canonical_takes
+    from streamfix.prior.data import split_takes
+    from streamfix.prior.runtime import Prior
+
+    model, card_path, card = _shipped_card_copy(tmp_path)
     card["held_out_scores"] = [{"take": "stale", "pattern": "random", "test_otp": 50.0, "method": "prior_latent",
                                 "rmse_m": 9.0, "rmse_dropped_m": 9.0, "windows": 1, "time_ms": 0.0}]
     card["held_out_protocol"] = "an older protocol"
@@ -179,17 +190,10 @@ def test_int8_jacobian_converts_an_exported_card_once_and_refuses_a_mismatched_g
     """``train-prior --int8-jacobian CARD``: the shipped card is int8 already (the graph stays as it is, the card
     is rescored); a graph that does not match its card is refused, not re-hashed."""
     import json
-    import shutil
 
-    from streamfix.prior.runtime import DEFAULT_CARD, Prior
+    from streamfix.prior.runtime import Prior
 
-    model = tmp_path / "model"
-    model.mkdir()
-    for f in DEFAULT_CARD.parent.glob("canonical.*"):
-        shutil.copy(f, model / f.name)
-    card_path = model / "canonical.json"
-    card = json.loads(card_path.read_text())
-    card["training"]["held_out"] = ["131_02"]  # one held-out take keeps the test short
+    model, card_path, card = _shipped_card_copy(tmp_path)
     card_path.write_text(json.dumps(card))
     cmd = [sys.executable, "-m", "streamfix", "train-prior", "--data", str(shared_data), "--int8-jacobian", str(card_path)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
