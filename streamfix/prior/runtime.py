@@ -184,7 +184,8 @@ class Prior:
 
     def decode_with_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """D(z) (B, T, J, 3) and the dD/dz rows (B, L, T'*J*3) of every ``jacobian_frame_step``-th frame
-        (T' = T / step; int8-rounded tangents in a card whose graph says so), float32, in one call."""
+        (T' = T / step; int8-rounded tangents in a card whose graph says so), float32: one onnxruntime call
+        for the batch, or one per window (``jacobian_per_window``)."""
         z = np.asarray(z, dtype=np.float32).reshape(-1, self.latent_size)
         b, n = z.shape[0], self.window * self.n_joints * 3
         feeds = {"z": z, "w": np.zeros((b, n), np.float32), "y": np.zeros((b, n), np.float32),
