@@ -75,19 +75,22 @@ def test_encoder_ignores_values_of_unobserved_joints(tiny):
     np.testing.assert_allclose(z1, z2, atol=1e-6)
 
 
+def _jacobian_feeds(seed: int, n: int = 16 * 25 * 3) -> dict:
+    rng = np.random.default_rng(seed)
+    return {"z": rng.normal(0, 1, (2, 5)).astype(np.float32), "w": (rng.random((2, n)) > 0.5).astype(np.float32),
+            "y": rng.normal(0, 0.3, (2, n)).astype(np.float32), "c": rng.normal(0, 0.1, (2, 3)).astype(np.float32)}
+
+
 def test_decoder_jacobian_graph_is_the_exact_jacobian(tiny):
     """The graph's ``jac`` holds the exact dD/dz rows of every JACOBIAN_FRAME_STEP-th frame; the normal equations
     are the sums over those frames times the step (what the latent fit solves)."""
     model, s = tiny
     step = JACOBIAN_FRAME_STEP
-    rng = np.random.default_rng(1)
-    z = rng.normal(0, 1, (2, 5)).astype(np.float32)
-    n = 16 * 25 * 3
-    w = (rng.random((2, n)) > 0.5).astype(np.float32)
-    y = rng.normal(0, 0.3, (2, n)).astype(np.float32)
-    c = rng.normal(0, 0.1, (2, 3)).astype(np.float32)
+    feeds = _jacobian_feeds(1)
+    z, w, y, c = (feeds[k] for k in "zwyc")
+    n = w.shape[1]
     names = ["x", "jac", "r", "cost", "gram", "jtr", "h_zc"]
-    out = dict(zip(names, s["decoder_jacobian"].run(names, {"z": z, "w": w, "y": y, "c": c})))
+    out = dict(zip(names, s["decoder_jacobian"].run(names, feeds)))
     assert out["jac"].shape == (2, 5, n // step)
     rows = (np.arange(n).reshape(16, -1)[::step]).ravel()  # coordinates of the frames the rows are of
     for b in range(2):
@@ -112,12 +115,6 @@ def test_decoder_jacobian_graph_is_the_exact_jacobian(tiny):
     np.testing.assert_allclose(out["gram"], step * jw @ jw.transpose(0, 2, 1), rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(out["jtr"][..., 0], step * (jw * r[:, None, rows]).sum(2), rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(out["h_zc"], step * jw.reshape(2, 5, -1, 3).sum(2), rtol=1e-5, atol=1e-5)
-
-
-def _jacobian_feeds(seed: int, n: int = 16 * 25 * 3) -> dict:
-    rng = np.random.default_rng(seed)
-    return {"z": rng.normal(0, 1, (2, 5)).astype(np.float32), "w": (rng.random((2, n)) > 0.5).astype(np.float32),
-            "y": rng.normal(0, 0.3, (2, n)).astype(np.float32), "c": rng.normal(0, 0.1, (2, 3)).astype(np.float32)}
 
 
 def test_int8_tangents_keep_d_of_z_exact_and_the_jacobian_within_a_few_percent(tiny_exact, tiny_int8):
