@@ -33,24 +33,24 @@ def pair_distance_spread(positions: np.ndarray, observed: np.ndarray | None = No
     T_len, J, _ = x.shape
     need = min_common * T_len if min_common <= 1 else min_common
     ia, ib = np.triu_indices(J, 1)
-    chunks = [slice(a, a + SPREAD_CHUNK_FRAMES) for a in range(0, T_len, SPREAD_CHUNK_FRAMES)]
-
-    def distances(c: slice) -> tuple[np.ndarray, np.ndarray]:
+    # one pass over frame chunks (the (T, P, 3) differences of a long take would not fit in
+    # memory): sums of the distances less a per-pair shift, the first chunk's mean, which
+    # keeps the variance's two sums from cancelling
+    cnt, s1, s2 = np.zeros(len(ia)), np.zeros(len(ia)), np.zeros(len(ia))
+    shift = None
+    for a in range(0, T_len, SPREAD_CHUNK_FRAMES):
+        c = slice(a, a + SPREAD_CHUNK_FRAMES)
         both = obs[c, ia] & obs[c, ib]                       # (t, P)
-        return np.linalg.norm(np.nan_to_num(x[c, ia] - x[c, ib]), axis=2), both
-
-    cnt = np.zeros(len(ia))
-    total = np.zeros(len(ia))
-    for c in chunks:                                         # two passes over frame chunks: the
-        d, both = distances(c)                               # (T, P, 3) differences of a long take
-        cnt += both.sum(axis=0)                              # would not fit in memory
-        total += (d * both).sum(axis=0)
-    mean = total / np.maximum(cnt, 1)
-    var = np.zeros(len(ia))
-    for c in chunks:
-        d, both = distances(c)
-        var += ((d - mean) ** 2 * both).sum(axis=0)
-    var /= np.maximum(cnt, 1)
+        d = np.linalg.norm(np.nan_to_num(x[c, ia] - x[c, ib]), axis=2)
+        n = both.sum(axis=0)
+        if shift is None:
+            shift = (d * both).sum(axis=0) / np.maximum(n, 1)
+        e = (d - shift) * both
+        cnt += n
+        s1 += e.sum(axis=0)
+        s2 += (e * e).sum(axis=0)
+    m1 = s1 / np.maximum(cnt, 1)
+    var = np.maximum(s2 / np.maximum(cnt, 1) - m1 * m1, 0.0)
     spread = np.full((J, J), np.inf)
     spread[ia, ib] = spread[ib, ia] = np.where(cnt >= max(need, 2), np.sqrt(var), np.inf)
     return spread
