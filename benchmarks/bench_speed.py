@@ -17,8 +17,11 @@ reading and writing the file), :func:`streamfix.core.filters.median_savgol` and
 process (``time.process_time``, BLAS pinned to one thread; best of ``--repeats`` runs for
 each, the clean included: a first run also pays one-off costs such as lazy imports). File
 reading and writing are not timed. The compiled kernels (:mod:`streamfix.core.kernels`,
-numba) are compiled or loaded from their cache before timing. ``--reference`` also times the clean with the kernels switched off (their
-numpy references, the same output) in the same run, for the kernels' speed-up.
+numba) are compiled or loaded from their cache before timing. The process keeps the memory it
+frees, as the ``streamfix`` command does (:func:`streamfix.allocator.keep_freed_memory`; the JSON
+says whether it applied), so the clean's CPU time is what ``streamfix clean`` spends.
+``--reference`` also times the clean with the kernels switched off (their numpy references,
+the same output) in the same run, for the kernels' speed-up.
 
 Writes ``benchmarks/results/speed.json`` (``--out``), prints a table, exits 1 when a target is missed;
 beside it, the minor page faults of one more clean (untimed): pages the allocator gave back to the
@@ -41,6 +44,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from streamfix.allocator import keep_freed_memory  # noqa: E402
 from streamfix.cleaning import clean_recording  # noqa: E402
 from streamfix.core import kernels  # noqa: E402
 from streamfix.core.filters import median_savgol, one_euro  # noqa: E402
@@ -86,7 +90,7 @@ def minor_page_faults(fn) -> int | None:
     """Minor page faults of this process during one call of ``fn()`` (None where the platform has no
     ``resource``). Why: a fault maps a fresh page (zeroed) for memory the allocator handed back to the
     system and asks for again; a 120 Hz file's window arrays are megabytes each, and their faults are
-    part of the clean's CPU time (glibc's defaults; a process that keeps its freed memory has almost none)."""
+    part of the clean's CPU time with glibc's defaults (:func:`keep_freed_memory` leaves almost none)."""
     try:
         import resource
     except ImportError:  # pragma: no cover - not Unix
@@ -148,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", type=int, default=0, metavar="N",
                     help="also print the N functions with the most cumulative time in clean (cProfile, Kinect take)")
     args = ap.parse_args(argv)
+    allocator_kept = keep_freed_memory()  # as the streamfix command does at start
     if args.quick:
         args.kinect_frames, args.bvh_frames = 2_000, 600
     kinect_files = sorted((args.data / "kinect_v2").glob("*.csv"))
@@ -191,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "bench_speed", "quick": args.quick,
         "targets": {"clean_fps_min": TARGET_FPS, "clean_over_median_savgol_max": TARGET_RATIO},
         "cpu": platform.processor() or platform.machine(), "python": platform.python_version(),
-        "numba": _numba_version(), "kernels_compiled": kernels.COMPILED,
+        "numba": _numba_version(), "kernels_compiled": kernels.COMPILED, "keep_freed_memory": allocator_kept,
         "rows": rows, "all_targets_met": all(r["targets_met"] for r in rows),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,8 @@ on this one core). The baseline, measured in the same run on the same frames, is
 same engine with a plain Savitzky-Golay window solver (fill gaps linearly, quadratic
 SG along time) -- the cheapest "refined" output one could ship. Timings are best of
 ``--repeats`` runs (the machine is shared); latency percentiles come from the run
-with the best throughput.
+with the best throughput. The process keeps the memory it frees, as ``streamfix serve`` does
+(:func:`streamfix.allocator.keep_freed_memory`).
 
 Usage: ``python benchmarks/bench_streaming.py [--bodies 12] [--seconds 20] [--repeats 3]
 [--window W] [--hop H] [--json OUT] [--profile N]``.
@@ -41,6 +42,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.signal import savgol_filter  # noqa: E402
 
+from streamfix.allocator import keep_freed_memory  # noqa: E402
 from streamfix.frames import BodyFrame, SkeletonFrame  # noqa: E402
 from streamfix.io import read_motion  # noqa: E402
 from streamfix.skeletons import KINECT_V2  # noqa: E402
@@ -241,6 +243,7 @@ def main() -> int:
                     help="also print the N functions with the most own time in one synchronous run of the "
                          "default engine (cProfile, after the timed runs)")
     args = ap.parse_args()
+    keep_freed_memory()  # as serve does at start
     n_frames = int(args.seconds * RATE)
     bodies = body_streams(args.bodies, n_frames)
     frames = make_frames(bodies, n_frames)

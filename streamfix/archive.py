@@ -35,6 +35,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
+from .allocator import keep_freed_memory
+
 __all__ = [
     "ArchiveOptions",
     "ArchiveJob",
@@ -174,6 +176,7 @@ def clean_file(input_path: str, output_path: str, options: ArchiveOptions = Arch
     Never raises: returns ``{"input", "output", "status": "ok" | "failed", "error",
     "frames", "seconds"}`` (frames written; seconds of CPU time in this process).
     """
+    keep_freed_memory()  # a pool or cluster worker is a process of its own (streamfix.allocator)
     t0 = time.process_time()
     record = {"input": str(input_path), "output": str(output_path), "status": "failed", "error": None,
               "frames": 0, "seconds": 0.0}

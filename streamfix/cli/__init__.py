@@ -11,6 +11,8 @@ import importlib
 import os
 import sys
 
+from ..allocator import keep_freed_memory
+
 # command name -> module under streamfix.cli
 COMMANDS = {
     "serve": "serve",
@@ -66,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "_run", None):
             parser.print_help()
             return 2
+        keep_freed_memory()  # window arrays reuse freed pages instead of faulting in new ones
         code = int(args._run(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, inside the handler below
         return code
