@@ -10,8 +10,9 @@ the machines here (``benchmarks/bench_speed.py`` prints the faults beside the fr
 Raising both thresholds keeps those pages in the process: after the first solve the same
 arrays reuse them, at the cost of a resident size that stays at its peak (a few MB more here).
 
-``streamfix`` applies this at start (:func:`streamfix.cli.main`), and so does an archive
-worker (:func:`streamfix.archive.clean_file`), which may run in a process of its own. Where
+``streamfix`` applies this at start (:func:`streamfix.cli.main`), and so do the processes of
+its own it may start: an archive worker (:func:`streamfix.archive.clean_file`) and ``serve
+--solver-process``'s solver child (:mod:`streamfix.streaming.solver_process`). Where
 the C library is not glibc, or the user set glibc's own ``MALLOC_MMAP_THRESHOLD_`` /
 ``MALLOC_TRIM_THRESHOLD_`` (theirs win), nothing changes.
 """

@@ -47,6 +47,7 @@ import signal
 import threading
 from typing import Any, Callable
 
+from ..allocator import keep_freed_memory
 from .solver_api import WindowSolver
 from .solver_pool import SOLVER_NICE
 from .window_solvers import default_window_solver
@@ -78,6 +79,7 @@ def _child_main(conn: Any, factory: Callable[[], WindowSolver], prior_path: str 
         os.nice(SOLVER_NICE)  # the live path first (see SOLVER_NICE)
     except OSError:
         pass
+    keep_freed_memory()  # the windows are solved here (streamfix.allocator)
     try:
         from ..core import kernels
         from ..prior.runtime import load_default_prior, set_default_prior
