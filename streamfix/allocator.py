@@ -5,10 +5,10 @@ fresh ``mmap`` and unmaps it on ``free``, and it returns free memory at the top 
 once that exceeds the trim threshold. A window solve allocates and frees the same few
 megabyte-sized arrays dozens of times (a 120 Hz take's window: 2,241 frames x 93 coordinates,
 1.7 MB each), so each one came back as new pages that the kernel zeroes and maps on first
-touch: about 15,000 page faults per solve of CMU 131_01 + 131_02, a tenth of its CPU time on
-the machines here (``benchmarks/bench_speed.py`` prints the faults beside the frames/s).
+touch: thousands of page faults per solve, a visible part of its CPU time
+(``benchmarks/bench_speed.py`` prints the faults of one clean beside the frames/s).
 Raising both thresholds keeps those pages in the process: after the first solve the same
-arrays reuse them, at the cost of a resident size that stays at its peak (a few MB more here).
+arrays reuse them, at the cost of a resident size that stays at its peak.
 
 ``streamfix`` applies this at start (:func:`streamfix.cli.main`), and so do the processes of
 its own it may start: an archive worker (:func:`streamfix.archive.clean_file`) and ``serve
