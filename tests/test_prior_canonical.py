@@ -198,3 +198,42 @@ def test_a_drifting_or_swapped_limb_raises_the_plausibility_residuals(prior, s06
     kin = pos[:, LAYOUTS["kinect_v2"].anchor_index]
     k = limb_residuals(kin, obs[:, LAYOUTS["kinect_v2"].anchor_index], 30.0, prior=prior)
     assert k.joint_residual_m.shape == (60, 25) and np.isfinite(k.joint_residual_m[:, KINECT_V2.index("KneeLeft")]).all()
+
+
+def test_proportion_augmentation_scales_each_bone_and_leaves_missing_joints_missing():
+    """train-prior's body-proportion augmentation: bone k's length times scales[k], the root fixed, unobserved
+    joints still zero; the window sampler draws one scale per bone kind, so left and right stay alike."""
+    from streamfix.io.prior_takes import Take
+    from streamfix.prior.data import rescale_bones, sample_window
+
+    rng = np.random.default_rng(3)
+    pos = rng.normal(size=(6, len(CANONICAL_JOINTS), 3))
+    obs = np.ones((6, len(CANONICAL_JOINTS)), bool)
+    obs[2, CANONICAL_JOINTS.index("elbow_l")] = False
+    pos[~obs] = 0.0
+    scales = rng.uniform(0.8, 1.25, len(CANONICAL_BONES))
+    out = rescale_bones(pos, obs, scales)
+    p, c = CANONICAL_BONES[:, 0], CANONICAL_BONES[:, 1]
+    both = obs[:, p] & obs[:, c]
+    ratio = np.linalg.norm(out[:, c] - out[:, p], axis=-1) / np.linalg.norm(pos[:, c] - pos[:, p], axis=-1)
+    np.testing.assert_allclose(ratio[both], np.broadcast_to(scales, ratio.shape)[both], rtol=1e-12)
+    np.testing.assert_array_equal(out[:, 0], pos[:, 0])
+    assert not out[~obs].any()
+    # through the sampler: left and right bones of a kind get the same factor, and it is not 1
+    body = pos[0].copy()  # a left/right symmetric body, so that the sampler's mirroring keeps its bone lengths
+    for n in CANONICAL_JOINTS:
+        if n.endswith("_r"):
+            body[CANONICAL_JOINTS.index(n)] = body[CANONICAL_JOINTS.index(n[:-2] + "_l")] * (-1.0, 1.0, 1.0)
+        elif not n.endswith("_l"):
+            body[CANONICAL_JOINTS.index(n), 0] = 0.0
+    pos = body[None]
+    take = Take(name="t", positions=np.repeat(pos[:1], 200, axis=0), observed=np.ones((200, len(CANONICAL_JOINTS)), bool),
+                rate_hz=30.0, source="bvh", group="t")
+    w, _ = sample_window(take, np.random.default_rng(0), 16, proportion_sigma=0.1)
+    factor = np.linalg.norm(w[0, c] - w[0, p], axis=-1) / np.linalg.norm(pos[0, c] - pos[0, p], axis=-1)
+    child = [CANONICAL_JOINTS[j] for j in c]
+    pairs = [(k, child.index(n[:-2] + "_r")) for k, n in enumerate(child) if n.endswith("_l")]
+    assert len(pairs) == 8
+    for left, right in pairs:
+        assert factor[left] == pytest.approx(factor[right], rel=1e-9)
+    assert np.abs(factor - 1).max() > 0.01

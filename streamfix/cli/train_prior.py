@@ -8,7 +8,7 @@ from pathlib import Path
 from .options import add_list_argument
 
 # streamfix.prior.train.TrainConfig's defaults (that module imports torch; --help must not need it)
-_DEFAULTS = {"epochs": 300, "steps_per_epoch": 60, "latent": 32, "channels": 96}
+_DEFAULTS = {"epochs": 600, "steps_per_epoch": 60, "latent": 32, "channels": 96, "proportion_sigma": 0.08}
 
 HELP = "train the learned motion prior (temporal-conv autoencoder, canonical body) on the shared recordings; export ONNX + card"
 
@@ -29,6 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed for weights, windows, augmentation and masks (default 0)")
     parser.add_argument("--latent", type=int, default=_DEFAULTS["latent"], help="latent size L")
     parser.add_argument("--channels", type=int, default=_DEFAULTS["channels"], help="feature maps per conv layer")
+    parser.add_argument("--proportion-sigma", type=float, default=_DEFAULTS["proportion_sigma"],
+                        help="augmentation: scale each bone by exp(N(0, sigma)), left and right alike "
+                             f"(default {_DEFAULTS['proportion_sigma']}; 0: off)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--device", default="cpu",
                         help="torch device to train on, e.g. cpu or cuda (same batches; weights differ by float rounding)")
@@ -95,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"train-prior: --workers {args.workers}: must be >= 0", file=sys.stderr)
         return 2
     cfg = TrainConfig(epochs=args.epochs, seed=args.seed, channels=args.channels, latent=args.latent,
-                      steps_per_epoch=args.steps, threads=args.threads, shares=shares, device=args.device,
-                      workers=args.workers)
+                      steps_per_epoch=args.steps, threads=args.threads, proportion_sigma=args.proportion_sigma,
+                      shares=shares, device=args.device, workers=args.workers)
     train_and_export(data, args.out, cfg, held_out=held, log=lambda s: print(s, flush=True), evaluate=not args.no_eval,
                      kinect_v1=not args.no_kinect_v1)
     return 0

@@ -27,7 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from streamfix.canonical import (
+    CANONICAL_BONES,
     CANONICAL_HIPS,
+    CANONICAL_JOINTS,
     CANONICAL_LIMBS,
     CANONICAL_ROOT,
     CANONICAL_SCALE_BONES,
@@ -115,8 +117,12 @@ def sample_window(
     rate_hz: float = MODEL_RATE_HZ,
     speed_range: tuple[float, float] = (0.7, 1.4),
     augment: bool = True,
+    proportion_sigma: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A (window, J, 3) m window and its (window, J) mask from ``take``, at ``rate_hz``, augmented."""
+    """A (window, J, 3) m window and its (window, J) mask from ``take``, at ``rate_hz``, augmented.
+
+    ``proportion_sigma`` > 0: each bone (left and right alike) is also scaled by exp(N(0, sigma))
+    (``rescale_bones``): body proportions of people the data does not hold."""
     lo, hi = speed_range
     speed = float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if augment else 1.0
     step = speed * take.rate_hz / rate_hz  # source frames per output frame
@@ -140,7 +146,26 @@ def sample_window(
         pos = pos @ rot_y(rng.uniform(-np.pi, np.pi)).T
         if rng.random() < 0.5:
             pos, mask = mirrored(pos, mask)
+        if proportion_sigma > 0:
+            pos = rescale_bones(pos, mask, np.exp(rng.normal(0.0, proportion_sigma, len(_BONE_KINDS)))[_BONE_KIND])
     return pos, mask
+
+
+# each canonical bone's kind (its child joint's name without the side), so that left and right scale alike
+_BONE_KINDS = tuple(dict.fromkeys(CANONICAL_JOINTS[c].rsplit("_", 1)[0] for _, c in CANONICAL_BONES))
+_BONE_KIND = np.array([_BONE_KINDS.index(CANONICAL_JOINTS[c].rsplit("_", 1)[0]) for _, c in CANONICAL_BONES])
+
+
+def rescale_bones(positions: np.ndarray, observed: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """``positions`` (T, J, 3) m with canonical bone k scaled by ``scales[k]`` (``CANONICAL_BONES`` order).
+
+    Each joint moves by its parent's displacement plus (s - 1) x its bone vector; a bone with an
+    unobserved end keeps its vector (its child follows the parent). Unobserved joints stay 0."""
+    disp = np.zeros_like(positions)
+    for k, (p, c) in enumerate(CANONICAL_BONES):  # 19 bones, parents first
+        both = (observed[:, p] & observed[:, c])[:, None]
+        disp[:, c] = disp[:, p] + np.where(both, (scales[k] - 1.0) * (positions[:, c] - positions[:, p]), 0.0)
+    return np.where(observed[..., None], positions + disp, 0.0)
 
 
 def drop_joints(mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -179,6 +204,7 @@ def make_batch(
     augment: bool = True,
     template: np.ndarray | None = None,
     shares: dict[str, float] | None = None,
+    proportion_sigma: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(y_in, mask_in, y_target, mask_target), float32, normalised with the *input* window's root and scale.
 
@@ -191,7 +217,7 @@ def make_batch(
     m_in = np.zeros((batch, window, n_j), np.float32)
     m_tg = np.zeros_like(m_in)
     for b, i in enumerate(idx):  # batch items, not frames
-        pos, mask = sample_window(takes[i], rng, window, augment=augment)
+        pos, mask = sample_window(takes[i], rng, window, augment=augment, proportion_sigma=proportion_sigma)
         keep = drop_joints(mask, rng)
         yi, norm = normalise(pos, keep, bones, reference_lengths, template=template, **CANONICAL_NORM)
         y_in[b] = yi

@@ -64,7 +64,7 @@ class TrainConfig:
 
     def __init__(
         self,
-        epochs: int = 300,
+        epochs: int = 600,
         seed: int = 0,
         window: int = 64,
         channels: int = 96,
@@ -76,11 +76,13 @@ class TrainConfig:
         threads: int = 1,
         weight_decay: float = 0.01,
         input_noise: float = 0.01,
+        proportion_sigma: float = 0.08,
         shares: dict[str, float] | None = None,
         device: str = "cpu",
         workers: int = 0,
     ):
         self.weight_decay, self.input_noise = weight_decay, input_noise
+        self.proportion_sigma = proportion_sigma
         self.epochs, self.seed, self.window = epochs, seed, window
         self.channels, self.latent, self.levels = channels, latent, levels
         self.batch, self.steps_per_epoch, self.lr, self.threads = batch, steps_per_epoch, lr, threads
@@ -130,7 +132,8 @@ _WORKER_ARGS: tuple | None = None
 def _draw_batch(k: int, args: tuple) -> tuple[np.ndarray, ...]:
     takes, config, bones, ref, template = args
     rng = np.random.default_rng((config.seed, k))
-    return make_batch(takes, rng, config.batch, bones, ref, config.window, template=template, shares=config.shares)
+    return make_batch(takes, rng, config.batch, bones, ref, config.window, template=template, shares=config.shares,
+                      proportion_sigma=config.proportion_sigma)
 
 
 def _worker_batch(k: int) -> tuple[np.ndarray, ...]:
@@ -556,6 +559,15 @@ def train_and_export(
     return export_with_card(model, history, train_takes, test_takes, out_dir, config, log=log, evaluate=evaluate)
 
 
+def _augmentation_text(config: TrainConfig) -> str:
+    text = ("rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring (x negated + joint "
+            "swap), speed x0.7..x1.4 by linear resampling, ")
+    if config.proportion_sigma > 0:
+        text += (f"body proportions (each bone, left and right alike, scaled by exp(N(0, {config.proportion_sigma:g})), "
+                 "streamfix.prior.data.rescale_bones), ")
+    return text + "joint dropping (subsets, limbs, partial layouts, runs of frames)"
+
+
 def export_with_card(
     model: TemporalAutoencoder,
     history: dict,
@@ -617,9 +629,7 @@ def export_with_card(
             "observed": "BVH retargeted: all joints; Kinect v2 CSV: tracked joints only; CMU marker C3D: joints from "
             "markers (streamfix.io.prior_takes._CMU_MARKERS_TO_KINECT); UI-PRMD Vicon: Plug-in-Gait joint centres "
             "(streamfix.io.prior_takes.plug_in_gait_joints); UI-PRMD Kinect v1: legs unobserved in m01/m05",
-            "augmentation": "rotation about y in [-pi, pi] (before facing normalisation), left/right mirroring "
-            "(x negated + joint swap), speed x0.7..x1.4 by linear resampling, joint dropping (subsets, limbs, "
-            "partial layouts, runs of frames)",
+            "augmentation": _augmentation_text(config),
             "loss": "masked (ambient) MSE over the data's observed joint-frames (Lohit et al. Sec. 4.2)",
             "config": config.as_dict(),
             "final_train_loss": history["train_loss"][-1],
