@@ -15,6 +15,8 @@ sampled at the model rate (30 Hz) with
   interpolation in time; a sample is observed only if both neighbours are);
 * **rotation about the vertical axis** (y, both Kinect camera space and BVH are y-up);
 * **left/right mirroring**: x negated and left/right joints swapped (``streamfix.canonical.mirrored``);
+* **body proportions** (``proportion_sigma``): each bone scaled by its own factor, left and right
+  alike (``rescale_bones``): the data holds few bodies (UI-PRMD has 10 people), users have others;
 * **joint dropping** (the paper's partially observed training, Sec. 4.2 and
   Appendix A.3): random joint subsets, whole limbs, the joints a partial layout
   (COCO-17, Kinect v1, BlazePose) lacks, or runs of frames missing per joint. Frames
