@@ -15,6 +15,7 @@ from streamfix.canonical import (
     from_canonical,
     get_layout,
     layout_for_joint_count,
+    mirrored,
     to_canonical,
 )
 from streamfix.io.prior_takes import canonical_take, plug_in_gait_joints, uiprmd_takes
@@ -220,13 +221,9 @@ def test_proportion_augmentation_scales_each_bone_and_leaves_missing_joints_miss
     np.testing.assert_array_equal(out[:, 0], pos[:, 0])
     assert not out[~obs].any()
     # through the sampler: left and right bones of a kind get the same factor, and it is not 1
-    body = pos[0].copy()  # a left/right symmetric body, so that the sampler's mirroring keeps its bone lengths
-    for n in CANONICAL_JOINTS:
-        if n.endswith("_r"):
-            body[CANONICAL_JOINTS.index(n)] = body[CANONICAL_JOINTS.index(n[:-2] + "_l")] * (-1.0, 1.0, 1.0)
-        elif not n.endswith("_l"):
-            body[CANONICAL_JOINTS.index(n), 0] = 0.0
-    pos = body[None]
+    # a left/right symmetric body (the mean of one and its mirror image), so that the sampler's mirroring
+    # keeps its bone lengths
+    pos = 0.5 * (pos[:1] + mirrored(pos[:1], obs[:1])[0])
     take = Take(name="t", positions=np.repeat(pos[:1], 200, axis=0), observed=np.ones((200, len(CANONICAL_JOINTS)), bool),
                 rate_hz=30.0, source="bvh", group="t")
     w, _ = sample_window(take, np.random.default_rng(0), 16, proportion_sigma=0.1)

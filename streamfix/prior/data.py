@@ -31,8 +31,8 @@ import numpy as np
 from streamfix.canonical import (
     CANONICAL_BONES,
     CANONICAL_HIPS,
-    CANONICAL_JOINTS,
     CANONICAL_LIMBS,
+    CANONICAL_MIRROR,
     CANONICAL_ROOT,
     CANONICAL_SCALE_BONES,
     LAYOUTS,
@@ -149,13 +149,20 @@ def sample_window(
         if rng.random() < 0.5:
             pos, mask = mirrored(pos, mask)
         if proportion_sigma > 0:
-            pos = rescale_bones(pos, mask, np.exp(rng.normal(0.0, proportion_sigma, len(_BONE_KINDS)))[_BONE_KIND])
+            pos = rescale_bones(pos, mask, np.exp(rng.normal(0.0, proportion_sigma, _N_BONE_KINDS))[_BONE_KIND])
     return pos, mask
 
 
-# each canonical bone's kind (its child joint's name without the side), so that left and right scale alike
-_BONE_KINDS = tuple(dict.fromkeys(CANONICAL_JOINTS[c].rsplit("_", 1)[0] for _, c in CANONICAL_BONES))
-_BONE_KIND = np.array([_BONE_KINDS.index(CANONICAL_JOINTS[c].rsplit("_", 1)[0]) for _, c in CANONICAL_BONES])
+def _bone_kinds() -> tuple[int, np.ndarray]:
+    """(number of kinds, each canonical bone's kind): a bone and its mirror image (``CANONICAL_MIRROR``)
+    are one kind, numbered in bone order, so that left and right scale alike."""
+    bone_of_child = {int(c): k for k, (_, c) in enumerate(CANONICAL_BONES)}
+    first = [min(k, bone_of_child[int(CANONICAL_MIRROR[c])]) for k, (_, c) in enumerate(CANONICAL_BONES)]
+    kinds, kind = np.unique(first, return_inverse=True)
+    return len(kinds), kind
+
+
+_N_BONE_KINDS, _BONE_KIND = _bone_kinds()
 
 
 def rescale_bones(positions: np.ndarray, observed: np.ndarray, scales: np.ndarray) -> np.ndarray:
