@@ -68,11 +68,31 @@ def test_running_median_kernel_is_bit_identical(kinect, window):
     ref = filters._running_median_numpy(x.copy(), window)
     assert got.shape == ref.shape
     assert np.array_equal(got, ref, equal_nan=True)
+    # few channels take the sorted loop, many the branch-free one (75 here): both exact
+    narrow = x[:, 3:6]
+    assert narrow.shape[1] * 3 < kernels._WIDE_MEDIAN_MIN_CHANNELS < x.shape[1] * 3
+    assert np.array_equal(kernels.running_median(narrow, window),
+                          filters._running_median_numpy(narrow.copy(), window), equal_nan=True)
     assert np.array_equal(filters.running_median(x, window, detrend_edges=False), ref, equal_nan=True)
     assert np.array_equal(filters.running_median(x, window), filters._detrended_edges(x, ref, window), equal_nan=True)
     # the compiled edges, also beyond the windows they are dispatched for
     assert np.array_equal(kernels.detrended_edges(x, ref, window), filters._detrended_edges(x, ref, window),
                           equal_nan=True)
+
+
+@pytest.mark.parametrize("window", [2, 5, 9, 19])
+def test_running_median_kernel_with_ties_and_infinities(window):
+    # integer samples (many ties), infinities among them and missing stretches, on 40
+    # channels (the branch-free loop, which keeps empty slots as +inf)
+    rng = np.random.default_rng(window)
+    x = rng.integers(-3, 4, size=(300, 40)).astype(float)
+    x[rng.random(x.shape) < 0.02] = np.inf
+    x[rng.random(x.shape) < 0.02] = -np.inf
+    x[rng.random(x.shape) < 0.2] = np.nan
+    x[50:80, :7] = np.nan
+    with np.errstate(invalid="ignore"):  # an even count's middle pair may be -inf and +inf: NaN in both
+        ref = filters._running_median_numpy(x.copy(), window)
+    assert np.array_equal(kernels.running_median(x, window), ref, equal_nan=True)
 
 
 def test_pbd_kernel_matches_numpy_reference(kinect):

@@ -256,6 +256,8 @@ def local_poly(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, np.nda
 
 # --------------------------------------------------------------------------- running median
 def _running_median_loop(x, window, out):  # pragma: no cover - compiled
+    """Running median of ``x`` ``(T, C)`` into ``out``: one sorted window per channel, updated by
+    insertion and deletion (shrunken windows at the edges, NaN = missing)."""
     n_frames, n_ch = x.shape
     half = window // 2
     ahead = window - 1 - half  # frames after t in t's window (half for odd windows)
@@ -291,7 +293,78 @@ def _running_median_loop(x, window, out):  # pragma: no cover - compiled
                     n -= 1
 
 
-_running_median_compiled = _jit(_running_median_loop)
+_running_median_sorted_compiled = _jit(_running_median_loop)
+
+
+def _running_median_wide_loop(x, window, out):  # pragma: no cover - compiled
+    """:func:`_running_median_loop`'s values, all channels advanced together: each channel's
+    window is kept sorted in ``sorted_[:, c]``, ``window`` slots, empty ones (and missing
+    samples) held as +inf. One step removes the frame that left and inserts the one that
+    entered with comparisons and min/max only: the slot q after removing a is
+    ``s[q + 1] if s[q] >= a else s[q]`` (r), after inserting b ``min(max(r[q - 1], b), r[q])``.
+    Why: the insertion sort's data-dependent loops mispredict most of their time away; these
+    branch-free steps run along contiguous channels, which the compiler vectorises (2-4x on
+    the window cleaner's 75 channels; slower than the sorted loop below ~16 channels). A real
+    +inf sample is indistinguishable from an empty slot, which gives the same medians."""
+    n_frames, n_ch = x.shape
+    half = window // 2
+    ahead = window - 1 - half
+    sorted_ = np.full((window, n_ch), np.inf)
+    below = np.empty(n_ch)  # r[q - 1] of the step in progress
+    leaving = np.empty(n_ch)
+    entering = np.empty(n_ch)
+    count = np.zeros(n_ch, dtype=np.int64)  # samples (not NaN) in each channel's window
+    for t in range(-ahead, n_frames):
+        leave = t - half - 1
+        enter = t + ahead
+        for c in range(n_ch):
+            leaving[c] = np.inf
+            entering[c] = np.inf
+        if leave >= 0:
+            for c in range(n_ch):
+                v = x[leave, c]
+                present = v == v
+                leaving[c] = v if present else np.inf
+                count[c] -= present
+        if enter < n_frames:
+            for c in range(n_ch):
+                v = x[enter, c]
+                present = v == v
+                entering[c] = v if present else np.inf
+                count[c] += present
+        for c in range(n_ch):
+            below[c] = -np.inf
+        for q in range(window - 1):
+            for c in range(n_ch):
+                s = sorted_[q, c]
+                r = sorted_[q + 1, c] if s >= leaving[c] else s
+                m = below[c] if below[c] > entering[c] else entering[c]
+                sorted_[q, c] = m if m < r else r
+                below[c] = r
+        for c in range(n_ch):
+            sorted_[window - 1, c] = below[c] if below[c] > entering[c] else entering[c]
+        if t >= 0:
+            for c in range(n_ch):
+                n = count[c]
+                if n == 0:
+                    out[t, c] = np.nan
+                else:
+                    out[t, c] = (sorted_[(n - 1) // 2, c] + sorted_[n // 2, c]) / 2.0
+
+
+_running_median_wide_compiled = _jit(_running_median_wide_loop, error_model="numpy")
+_WIDE_MEDIAN_MIN_CHANNELS = 16  # measured: the branch-free steps win from about here
+
+
+def _running_median_any(x, window, out):  # pragma: no cover - compiled
+    """The running median of ``x`` ``(T, C)`` by whichever loop is faster for C channels."""
+    if x.shape[1] >= _WIDE_MEDIAN_MIN_CHANNELS:
+        _running_median_wide_compiled(x, window, out)
+    else:
+        _running_median_sorted_compiled(x, window, out)
+
+
+_running_median_compiled = _jit(_running_median_any)
 
 
 def running_median(x: np.ndarray, window: int) -> np.ndarray:
