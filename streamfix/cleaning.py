@@ -29,6 +29,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from .core.points import finite_points
 from .core.units import units_problem
 from .motion import Motion
 from .streaming.engine import EngineConfig
@@ -107,6 +108,6 @@ def clean_recording(
         rec = cleaned.recovered.copy()
         rec[same] |= gapfilled[idx[same]]
         cleaned.recovered = rec
-        cleaned.confidence = np.where(rec & np.isfinite(cleaned.positions).all(axis=2),
+        cleaned.confidence = np.where(rec & finite_points(cleaned.positions),
                                       np.minimum(cleaned.confidence, 0.5), cleaned.confidence)
     return CleanedRecording(cleaned, source, metrics, notes, gapfilled)

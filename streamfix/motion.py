@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .core.points import finite_points
 from .skeletons import Skeleton
 
 __all__ = [
@@ -73,7 +74,7 @@ class Motion:
                     f"recovered must be {(n_frames, n_joints)}, got {self.recovered.shape}"
                 )
         # A NaN/inf coordinate is a missing joint, whatever its stated confidence.
-        bad = ~np.isfinite(self.positions).all(axis=2)
+        bad = ~finite_points(self.positions)
         if bad.any():
             self.positions[bad] = np.nan
             self.confidence[bad] = CONFIDENCE_MISSING
@@ -129,6 +130,6 @@ class Motion:
         """A motion with uniform timestamps; every finite sample observed unless told."""
         positions = np.asarray(positions, dtype=np.float64)
         if confidence is None:
-            confidence = np.isfinite(positions).all(axis=2).astype(np.float64)
+            confidence = finite_points(positions).astype(np.float64)
         timestamps = t0 + np.arange(positions.shape[0]) / float(rate_hz)
         return cls(positions.copy(), np.array(confidence, dtype=np.float64), timestamps, rate_hz, skeleton)

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from .local_poly import fit_local_quadratic
+from .points import point_norms
 
 __all__ = ["motion_adaptive_smooth"]
 
@@ -39,7 +40,7 @@ def motion_adaptive_smooth(y: np.ndarray, w: np.ndarray, rate_hz: float, window_
     if hs == hl:
         return long_, hl
     short, _ = fit_local_quadratic(y, w, hs)
-    dev = np.linalg.norm((long_ - short).reshape(T, -1, 3), axis=2)  # (T, J) m
+    dev = point_norms((long_ - short).reshape(T, -1, 3))  # (T, J) m
     lo, hi = bias_m
     dev = correlate1d(dev, np.full(2 * hs + 1, 1.0 / (2 * hs + 1)), axis=0, mode="nearest")
     z = np.clip((hi - dev) / max(hi - lo, 1e-12), 0.0, 1.0)

@@ -64,6 +64,7 @@ import numpy as np
 
 from .interpolate import interpolate_linear
 from .isometry import estimate_bone_lengths, gauss_newton_step
+from .points import finite_points
 from .wavelets import TemporalWavelet
 
 __all__ = ["SolverParams", "SolverState", "SolverResult", "solve", "default_rho0"]
@@ -300,7 +301,7 @@ def _validate(D: np.ndarray, observed: np.ndarray | None, bones: np.ndarray) -> 
     observed = np.asarray(observed, dtype=bool)
     if observed.shape != (n_frames, n_joints):
         raise ValueError(f"observed must be (T, J) = {(n_frames, n_joints)}, got {observed.shape}")
-    observed = observed & np.isfinite(D).all(axis=2)
+    observed = observed & finite_points(D)
     bones = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     if bones.size and (bones.min() < 0 or bones.max() >= n_joints):
         raise ValueError(f"bones must index the {n_joints} joints of D, got indices up to {bones.max()}")

@@ -19,6 +19,7 @@ from . import kernels
 from .interpolate import missing_run_lengths
 from .isometry import gauss_newton_step, incidence_matrix
 from .local_poly import fit_local_quadratic
+from .points import finite_points
 from .robust_stats import nanmedian
 
 __all__ = ["project_bone_lengths", "project_bone_lengths_pbd", "project_pbd", "joint_noise_scale", "noise_share",
@@ -41,7 +42,7 @@ def project_bone_lengths(
     A = np.asarray(positions, dtype=np.float64)
     if len(bones) == 0 or steps <= 0:
         return A.copy()
-    finite = np.isfinite(A).all(axis=2)
+    finite = finite_points(A)
     if not finite.all():
         return A.copy()  # never invent data for joints that are still missing
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)

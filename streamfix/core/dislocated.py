@@ -32,6 +32,7 @@ import numpy as np
 from .bone_rotations import subtree_mask, topological_order
 from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear, missing_run_lengths
+from .points import finite_points, point_norms
 
 __all__ = ["dislocated_ends", "end_segments", "parent_relative_fill", "FRACTION", "FLOOR_M", "MIN_RUN_S", "PROXIMAL_FRACTION", "MAX_SUBTREE"]
 
@@ -117,7 +118,7 @@ def dislocated_ends(
     # frozen-limb stage; released here for its length, a seated user's inferred feet under a
     # desk (seated_joints.csv) were filled 5 % off their mirrors' lengths, from 2 %
     seen = (conf[:, b[k, 0]] > 0) & (conf[:, b[k, 1]] >= 1.0)
-    error = np.abs(np.linalg.norm(x[:, b[k, 1]] - x[:, b[k, 0]], axis=2) - target[k])  # NaN: an end or the length unknown
+    error = np.abs(point_norms(x[:, b[k, 1]] - x[:, b[k, 0]]) - target[k])  # NaN: an end or the length unknown
     bad = seen & (error > np.maximum(fraction * target[k], floor_m))
     if not bad.any():
         return out
@@ -129,7 +130,7 @@ def dislocated_ends(
     if has_up.any():
         u = up[has_up]
         up_seen = (conf[:, b[u, 0]] > 0) & (conf[:, b[u, 1]] > 0)
-        up_error = np.abs(np.linalg.norm(x[:, b[u, 1]] - x[:, b[u, 0]], axis=2) - target[u])
+        up_error = np.abs(point_norms(x[:, b[u, 1]] - x[:, b[u, 0]]) - target[u])
         bad[:, has_up] &= up_seen & (up_error <= proximal_fraction * target[u])
     run = missing_run_lengths(~bad)  # the length of each run of bad samples
     bad &= run >= max(1, int(round(min_run_s * rate_hz)))
@@ -166,10 +167,10 @@ def parent_relative_fill(positions: np.ndarray, released: np.ndarray, observed: 
     for j in order[todo[order]]:  # parents first: a released hand tip after its hand
         p = parents[j]
         offset = np.where((good[:, j] & good[:, p])[:, None], x[:, j] - x[:, p], np.nan)[:, None]
-        est = interpolate_linear(offset, np.isfinite(offset).all(axis=2))[0][:, 0]
+        est = interpolate_linear(offset, finite_points(offset))[0][:, 0]
         if np.isfinite(length[j]):
             norm = np.linalg.norm(est, axis=1, keepdims=True)
             est = est * (length[j] / np.where(norm > 0, norm, 1.0))  # the bone's length, not the chord's
         x[rel[:, j], j] = x[rel[:, j], p] + est[rel[:, j]]
-    x[rel & ~np.isfinite(x).all(axis=2)] = np.nan
+    x[rel & ~finite_points(x)] = np.nan
     return x

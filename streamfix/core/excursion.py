@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .interpolate import continuity_baseline
+from .points import finite_points, point_norms
 
 __all__ = ["EXCURSION_GAIN", "EXCURSION_HORIZON_S", "limit_excursion", "anchor_reference", "parents_from_bones",
            "bone_into", "travel_speed"]
@@ -41,7 +42,7 @@ def travel_speed(positions: np.ndarray, observed: np.ndarray, rate_hz: float) ->
     common joint are observed.
     """
     x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+    obs = np.asarray(observed, dtype=bool) & finite_points(x)
     seen = np.flatnonzero(obs.any(axis=1))
     if len(seen) < 2:
         return 0.0
@@ -78,7 +79,7 @@ def anchor_reference(positions: np.ndarray, observed: np.ndarray, parents: np.nd
     the origin when none is (world coordinates, the old behaviour).
     """
     x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+    obs = np.asarray(observed, dtype=bool) & finite_points(x)
     T, J = obs.shape
     parents = np.asarray(parents, dtype=np.int64)
     always = obs.all(axis=0)
@@ -158,7 +159,7 @@ def limit_excursion(
         since = np.arange(T_len)[:, None] - prev
         cap = np.where(hp & ~hn, cap * np.minimum(1.0, since / float(ramp)), cap)
     d = y - base
-    norm = np.linalg.norm(d, axis=2)
+    norm = point_norms(d)
     scale = np.where(norm > cap, cap / np.maximum(norm, _EPS), 1.0)
     use = fil & (hp | hn) & np.isfinite(norm)
     out = x.copy()

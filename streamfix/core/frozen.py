@@ -28,6 +28,7 @@ from scipy import ndimage
 from scipy.ndimage import uniform_filter1d
 
 from .interpolate import missing_run_lengths, run_labels
+from .points import finite_points, point_norms
 
 __all__ = ["articulation", "frozen_inferred", "frozen_and_rigid", "RIGID_M", "TWIN_BENDS_M", "ARTICULATION_SPAN_S",
            "MIN_FROZEN_S", "MIN_DECIDING_BONE_M"]
@@ -83,7 +84,7 @@ def articulation(positions: np.ndarray, parents: np.ndarray, span: int, joints: 
         return full
     span = max(3, int(span))
     rel = x - x[:, np.maximum(par, 0)]
-    bad = ~np.isfinite(rel).all(axis=2) | (par < 0)[None, :]
+    bad = ~finite_points(rel) | (par < 0)[None, :]
     rel = np.where(bad[..., None], 0.0, rel)
     t = (np.arange(T, dtype=np.float64) - 0.5 * (T - 1))[:, None, None]  # centred: better conditioned
     m_t = _moving_mean(np.broadcast_to(t, (T, 1, 1)).copy(), span)
@@ -166,7 +167,7 @@ def frozen_and_rigid(
     measure (missing) does not stop the decision.
     """
     x = np.asarray(positions, dtype=np.float64)
-    inf = np.asarray(inferred, dtype=bool) & np.isfinite(x).all(axis=2)
+    inf = np.asarray(inferred, dtype=bool) & finite_points(x)
     limbs = np.asarray(limb_joints, dtype=bool)
     T, J = inf.shape
     out = np.zeros_like(inf)
@@ -176,7 +177,7 @@ def frozen_and_rigid(
     if not cand.any():
         return out, rigid
     par = np.asarray(parents, dtype=np.intp)
-    rel = np.linalg.norm(x - x[:, np.maximum(par, 0)], axis=2)
+    rel = point_norms(x - x[:, np.maximum(par, 0)])
     fin = np.isfinite(rel)
     bone = np.where(fin, rel, 0.0).sum(axis=0) / np.maximum(fin.sum(axis=0), 1)  # mean length (m)
     deciding = bone >= min_bone_m

@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
+from .points import finite_points, point_norms
+
 __all__ = ["replacement_weight", "tracked_proximity", "DISAGREE_M", "TRACKED_NEAR_S"]
 
 DISAGREE_M = (0.10, 0.25)
@@ -66,10 +68,10 @@ def replacement_weight(
     x = np.asarray(inferred, dtype=np.float64)
     f = np.asarray(fill, dtype=np.float64)
     use = np.asarray(candidates, dtype=bool) & np.asarray(filled, dtype=bool)
-    use &= np.isfinite(x).all(axis=2) & np.isfinite(f).all(axis=2)
+    use &= finite_points(x) & finite_points(f)
     if not use.any():
         return np.zeros(use.shape)
-    d = np.where(use, np.linalg.norm(np.nan_to_num(x - f), axis=2), 0.0)
+    d = np.where(use, point_norms(np.nan_to_num(x - f)), 0.0)
     # a running mean over the usable samples only (0/0 where none)
     num = uniform_filter1d(d, size=max(1, int(span)), axis=0, mode="nearest")
     den = uniform_filter1d(use.astype(np.float64), size=max(1, int(span)), axis=0, mode="nearest")

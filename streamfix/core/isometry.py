@@ -20,6 +20,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from . import kernels
+from .points import point_norms
 from .robust_stats import nanmedian
 
 __all__ = [
@@ -65,7 +66,7 @@ def bone_vectors(positions: np.ndarray, bones: np.ndarray) -> np.ndarray:
 
 def bone_lengths_per_frame(positions: np.ndarray, bones: np.ndarray) -> np.ndarray:
     """``(T, B)`` Euclidean bone lengths d(n_i^t, n_j^t) in metres (NaN if an end is NaN)."""
-    return np.linalg.norm(bone_vectors(positions, bones), axis=-1)
+    return point_norms(bone_vectors(positions, bones))
 
 
 def _shorth_mode(values: np.ndarray, fraction: float) -> np.ndarray:

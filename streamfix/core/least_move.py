@@ -32,6 +32,7 @@ import numpy as np
 from .interpolate import observed_mask
 from .isometry import bone_vectors, incidence_matrix
 from .metrics import bone_length_cv, jitter
+from .points import point_norms
 
 __all__ = ["LeastMove", "least_move_meeting_bars", "bar_terms"]
 
@@ -172,5 +173,5 @@ def least_move_meeting_bars(
     out = np.where(obs[..., None], y, x)
     y_obs = np.where(obs[..., None], out, np.nan)  # the bars' own formulas decide feasibility
     jit, cv = jitter(y_obs), bone_length_cv(y_obs, bones)
-    move = float(np.linalg.norm(out - x, axis=2)[cnt].mean()) if cnt.any() else 0.0
+    move = float(point_norms(out - x)[cnt].mean()) if cnt.any() else 0.0
     return LeastMove(out, move, jit, cv, bool(jit <= jitter_max and cv <= cv_max))

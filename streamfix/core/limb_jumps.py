@@ -26,6 +26,7 @@ from .bone_rotations import subtree_mask
 from .excursion import parents_from_bones
 from .interpolate import missing_run_lengths
 from .isometry import bone_lengths_per_frame
+from .points import finite_points
 from .robust_stats import nanmedian
 
 __all__ = ["jumped_limbs", "MIN_BONE_M", "FLOOR_M", "NOISE_MULTIPLE", "MIN_RUN_S", "MAX_RUN_S", "ABRUPT_FRACTION",
@@ -82,7 +83,7 @@ def jumped_limbs(
     window's observed frames); ``rate_hz`` turns ``MIN_RUN_S`` and ``MAX_RUN_S`` into frames.
     """
     x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+    obs = np.asarray(observed, dtype=bool) & finite_points(x)
     T, J = obs.shape
     out = np.zeros((T, J), dtype=bool)
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)

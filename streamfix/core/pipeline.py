@@ -145,6 +145,7 @@ from .isometry import bone_length_deviations, estimate_bone_lengths
 from .length_tolerance import LENGTH_TOLERANCE, NOISE_MULTIPLE, PLAY_SMOOTH_S, length_targets, length_tolerance
 from .local_poly import kernel_mass, residual_scale
 from .local_width import frame_bone_deviations, frame_sums, local_width_index, take_fractional
+from .points import any_xyz, finite_points
 from .rigid_motion import rigid_motion
 from .robust_fit import robust_fit
 from .window_gaps import fill_short_gaps, limit_open_gaps, spline_closed_gaps
@@ -340,7 +341,7 @@ def clean_window(
     if x.ndim != 3 or x.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {x.shape}")
     n_frames, n_joints, _ = x.shape
-    finite = np.isfinite(x).all(axis=2)
+    finite = finite_points(x)
     if confidence is None:
         conf = finite.astype(np.float64)
     else:
@@ -448,7 +449,7 @@ def clean_window(
     outlier = obs3 & ~(np.abs(resid) <= cfg.outlier_threshold_m)  # NaN residual: an outlier
     if cfg.keep_rigid_motion and len(rigid):
         # a flagged group whose raw bones stay rigid is motion too fast for the fit, not an outlier
-        motion = rigid_motion(x, np.where(outlier, fit, x), outlier.any(axis=2), obs, rigid, cfg.min_bone_m)
+        motion = rigid_motion(x, np.where(outlier, fit, x), any_xyz(outlier), obs, rigid, cfg.min_bone_m)
         outlier &= ~motion[..., None]
         info["rigid_motion_kept"] = int(motion.sum())
     cleaned = np.where(obs3 & ~outlier, x, fit)
@@ -533,11 +534,11 @@ def clean_window(
             filled, _ = interpolate_linear(base, obs)
         cleaned = np.where(obs3, cleaned, filled)
 
-    recovered = missing | outlier.any(axis=2)  # filled or replaced: no sensor reading behind them
+    recovered = missing | any_xyz(outlier)  # filled or replaced: no sensor reading behind them
 
     # stage 5: bone-length projection
     if cfg.project_bones and len(bones):
-        good = obs & ~outlier.any(axis=2)  # observed and kept: the samples whose lengths count
+        good = obs & ~any_xyz(outlier)  # observed and kept: the samples whose lengths count
         if bone_lengths is None:
             bl = estimate_bone_lengths(cleaned, bones, good, np.where(good, conf, 0.0))
             bl = np.where(np.isfinite(bl), bl, estimate_bone_lengths(cleaned, bones))
@@ -545,7 +546,7 @@ def clean_window(
             bl = np.asarray(bone_lengths, dtype=np.float64)
         if cfg.projection == "pbd":
             noise = joint_noise_scale(x, cleaned, obs3 & ~outlier)
-            failed = tracking_failures(outlier.any(axis=2), rate_hz, cfg.projection_failure_s)
+            failed = tracking_failures(any_xyz(outlier), rate_hz, cfg.projection_failure_s)
             inv_mass = projection_inverse_mass(np.where(failed, 0.0, conf), obs & ~failed, noise,
                                                cfg.projection_noise_floor_m, cfg.projection_noisy_ratio)
             targets = bl

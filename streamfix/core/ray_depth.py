@@ -52,6 +52,7 @@ from .bone_rotations import depth_levels
 from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear, neighbour_observations
 from .isometry import thrown_twins
+from .points import finite_points, point_norms
 from .robust_stats import nanmedian
 
 __all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "MAX_BONE_M", "STALE_S", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
@@ -157,7 +158,7 @@ def _carried_by_parent(world: np.ndarray, x: np.ndarray, own_good: np.ndarray, s
     rel_good = own_good & seen[:, parents]
     offset = np.where(rel_good[..., None], x[:, cols] - x[:, parents], np.nan)
     carried = interpolate_linear(offset, rel_good)[0] + x[:, parents]
-    use = stale & np.isfinite(carried).all(axis=2)
+    use = stale & finite_points(carried)
     return np.where(use[..., None], carried, world)
 
 
@@ -189,8 +190,8 @@ def _children_choose(x: np.ndarray, seen: np.ndarray, length: np.ndarray, kids: 
     if not use.any():
         return np.zeros(near.shape[:2], dtype=bool), np.zeros(near.shape[:2], dtype=bool)
     pos = x[:, k]  # (T, n, C, 3)
-    miss_near = np.abs(np.linalg.norm(pos - near[:, :, None], axis=3) - L[None])
-    miss_far = np.abs(np.linalg.norm(pos - far[:, :, None], axis=3) - L[None])
+    miss_near = np.abs(point_norms(pos - near[:, :, None]) - L[None])
+    miss_far = np.abs(point_norms(pos - far[:, :, None]) - L[None])
     cost_near = np.where(use, miss_near, 0.0).sum(axis=2)
     cost_far = np.where(use, miss_far, 0.0).sum(axis=2)
     tol = np.where(use, np.maximum(CHILD_FIT * L[None], RAY_NOISE_M), 0.0).sum(axis=2)
@@ -238,13 +239,13 @@ def repair_ray_depth(
         judged &= np.asarray(joints, dtype=bool)
     if not judged.any():
         return x, done
-    seen = (conf > 0) & np.isfinite(x).all(axis=2)
+    seen = (conf > 0) & finite_points(x)
     pj = np.where(parents >= 0, parents, 0)
 
     def stretched(pos: np.ndarray, cols: np.ndarray | slice = slice(None)) -> np.ndarray:
         """(T, len(cols)) bool: the joints ``cols`` whose bone to their parent is stretched."""
         p, L = pj[cols], length[cols]
-        bone = np.linalg.norm(pos[:, cols] - pos[:, p], axis=2)
+        bone = point_norms(pos[:, cols] - pos[:, p])
         return seen[:, cols] & seen[:, p] & judged[cols] & (bone - L > np.maximum(fraction * L, floor_m))
 
     raw_stretched = stretched(x)
@@ -273,7 +274,7 @@ def repair_ray_depth(
                 own[:, need] = ref[:, need]
                 # a reference that took the throw itself (the live output followed a joint thrown
                 # before the body's lengths were known) says nothing of where the joint belongs
-                ref_bone = np.linalg.norm(ref[:, need] - ref[:, pj[need]], axis=2)
+                ref_bone = point_norms(ref[:, need] - ref[:, pj[need]])
                 with np.errstate(invalid="ignore"):
                     took = judged[need][None, :] & (ref_bone - length[need] > np.maximum(fraction * length[need], floor_m))
                 own[:, need] = np.where(took[..., None], np.nan, own[:, need])
@@ -298,7 +299,7 @@ def repair_ray_depth(
     children = _child_table(parents.tobytes())
     into_ok = np.ones((T, J), dtype=bool)  # each joint's own bone within proximal_fraction (roots: True)
     for level_all, _ in depth_levels(parents.tobytes())[1:]:  # roots have no bone to judge
-        bone_all = np.linalg.norm(x[:, level_all] - x[:, parents[level_all]], axis=2)
+        bone_all = point_norms(x[:, level_all] - x[:, parents[level_all]])
         cand = stretched(x, level_all) & into_ok[:, parents[level_all]]
         rows = cand.any(axis=1)
         if rows.any():
@@ -307,14 +308,14 @@ def repair_ray_depth(
         if hit.any():  # only this level's joints with a candidate frame are worked on
             level, cand = level_all[hit], cand[:, hit]
             p, L = parents[level], length[level]
-            dist = np.linalg.norm(x[:, level], axis=2)
+            dist = point_norms(x[:, level])
             u = x[:, level] / np.where(dist > 0, dist, 1.0)[..., None]  # unit ray through the joint
             along = (u * x[:, p]).sum(axis=2)  # s of the ray's point nearest the parent
             miss2 = (x[:, p] ** 2).sum(axis=2) - along ** 2  # squared distance of that point to the parent
             reach = L * (1.0 + ray_slack) + RAY_NOISE_M
             off = x[:, level] - expected(level)  # NaN: no good sample
             departure = (off * u).sum(axis=2)
-            sideways = np.linalg.norm(off - departure[..., None] * u, axis=2)
+            sideways = point_norms(off - departure[..., None] * u)
             departure = np.abs(departure)
             # thrown along the ray: far from where the joint is expected, and mostly along the ray
             # (a joint thrown in another direction is the jump stage's: moved along its ray, it
@@ -330,8 +331,8 @@ def repair_ray_depth(
                     guess = interpolate_linear(offset, good)[0] + x[:, p]
                 else:
                     guess = x[:, p] + (expected(level) - expected(p))
-                known = np.isfinite(guess).all(axis=2)
-                use_near = np.where(known, np.linalg.norm(near - guess, axis=2) <= np.linalg.norm(far - guess, axis=2),
+                known = finite_points(guess)
+                use_near = np.where(known, point_norms(near - guess) <= point_norms(far - guess),
                                     True)  # no guess: the sensor's side
                 # the joint's own children say which of the two it is where they can: each must lie at
                 # its bone's length from it (the ankle from a knee), which only one point may give them
@@ -341,7 +342,7 @@ def repair_ray_depth(
                 fixed = np.where(use_near[..., None], near, far)
                 x[:, level] = np.where(cand[..., None], fixed, x[:, level])
                 done[:, level] = cand
-                bone_all[:, hit] = np.where(cand, np.linalg.norm(x[:, level] - x[:, p], axis=2), bone_all[:, hit])
+                bone_all[:, hit] = np.where(cand, point_norms(x[:, level] - x[:, p]), bone_all[:, hit])
         L_all = length[level_all]
         into_ok[:, level_all] = ~judged[level_all] | (np.abs(bone_all - L_all) <= np.maximum(proximal_fraction * L_all, floor_m)) | ~np.isfinite(L_all)
     return x, done

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .points import finite_points
+
 __all__ = ["resample_positions", "resample_plan", "resample_values"]
 
 _RATIO_TOL = 1e-9
@@ -66,7 +68,7 @@ def resample_positions(
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 3 or positions.shape[2] != 3:
         raise ValueError(f"positions must be (T, J, 3), got {positions.shape}")
-    finite = np.isfinite(positions).all(axis=2)
+    finite = finite_points(positions)
     observed = finite if observed is None else np.asarray(observed, dtype=bool) & finite
     if observed.shape != positions.shape[:2]:
         raise ValueError(f"observed must be {positions.shape[:2]}, got {observed.shape}")

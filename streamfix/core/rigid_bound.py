@@ -21,6 +21,7 @@ from scipy.optimize import linprog
 from scipy.sparse import csr_matrix
 
 from .isometry import bone_lengths_per_frame
+from .points import finite_points
 from .robust_stats import nanmedian
 
 __all__ = ["least_shift_to_rigid", "CHUNK_FRAMES"]
@@ -51,7 +52,7 @@ def least_shift_to_rigid(
     if not 0.0 <= keep < 1.0:
         raise ValueError(f"keep must be in [0, 1), got {keep}")
     x = np.asarray(positions, dtype=np.float64)
-    obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+    obs = np.asarray(observed, dtype=bool) & finite_points(x)
     cost = np.asarray(counted, dtype=bool) & obs
     b = np.asarray(bones, dtype=np.intp).reshape(-1, 2)
     T, J = obs.shape

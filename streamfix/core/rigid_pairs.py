@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .pca_training import _observed_mask
+from .points import finite_points, point_norms
 
 __all__ = ["pair_distance_spread", "estimate_rigid_pairs", "rigid_neighbours", "pair_distance_ranges",
            "project_pair_distances", "pair_distance_plausibility"]
@@ -41,7 +42,7 @@ def pair_distance_spread(positions: np.ndarray, observed: np.ndarray | None = No
     for a in range(0, T_len, SPREAD_CHUNK_FRAMES):
         c = slice(a, a + SPREAD_CHUNK_FRAMES)
         both = obs[c, ia] & obs[c, ib]                       # (t, P)
-        d = np.linalg.norm(np.nan_to_num(x[c, ia] - x[c, ib]), axis=2)
+        d = point_norms(np.nan_to_num(x[c, ia] - x[c, ib]))
         n = both.sum(axis=0)
         if shift is None:
             shift = (d * both).sum(axis=0) / np.maximum(n, 1)
@@ -83,7 +84,7 @@ def pair_distance_ranges(positions: np.ndarray, observed: np.ndarray, pairs: np.
     x = np.asarray(positions, dtype=np.float64)
     obs = np.asarray(observed, dtype=bool)
     a, b = np.asarray(pairs, dtype=np.intp).reshape(-1, 2).T
-    d = np.linalg.norm(x[:, a] - x[:, b], axis=2)
+    d = point_norms(x[:, a] - x[:, b])
     both = obs[:, a] & obs[:, b]
     return np.min(np.where(both, d, np.inf), axis=0), np.max(np.where(both, d, -np.inf), axis=0)
 
@@ -98,7 +99,7 @@ def project_pair_distances(positions: np.ndarray, movable: np.ndarray, pairs: np
     never move. Returns new positions ``(T, J, 3)``.
     """
     x = np.asarray(positions, dtype=np.float64).copy()
-    mov = np.asarray(movable, dtype=bool) & np.isfinite(x).all(axis=2)
+    mov = np.asarray(movable, dtype=bool) & finite_points(x)
     a, b = np.asarray(pairs, dtype=np.intp).reshape(-1, 2).T
     if a.size == 0 or not mov.any():
         return x
@@ -119,7 +120,7 @@ def project_pair_distances(positions: np.ndarray, movable: np.ndarray, pairs: np
     inc[P + np.arange(P), b] = 1.0
     for _ in range(iterations):
         v = xs[:, b] - xs[:, a]                              # (t, P, 3)
-        L = np.linalg.norm(v, axis=2)
+        L = point_norms(v)
         tgt = np.clip(L, lo, hi)
         bad = np.isfinite(L) & (L > 0) & ((L < lo) | (L > hi))
         if not bad.any():
@@ -148,7 +149,7 @@ def pair_distance_plausibility(positions: np.ndarray, observed: np.ndarray, fill
     fil = np.asarray(filled, dtype=bool)
     pairs = np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
     a, b = pairs[:, 0], pairs[:, 1]
-    d = np.linalg.norm(x[:, a] - x[:, b], axis=2)           # (T, P)
+    d = point_norms(x[:, a] - x[:, b])           # (T, P)
     both = obs[:, a] & obs[:, b]
     dmin = np.nanmin(np.where(both, d, np.inf), axis=0) - tol_m
     dmax = np.nanmax(np.where(both, d, -np.inf), axis=0) + tol_m

@@ -49,6 +49,7 @@ from scipy.ndimage import correlate1d
 
 from .filters import odd_window, running_median
 from .local_poly import fit_local_quadratic
+from .points import point_norms
 
 __all__ = [
     "SupportConfig",
@@ -210,7 +211,7 @@ def plant_supporting_feet(
     # wild = far from a 5-frame median: isolated corruption, not a fast fold (feet rise
     # 50 cm in 0.5 s in a real squat failure, i.e. a few cm per frame)
     near = running_median(x[:, legs.ravel()], 5, detrend_edges=False)
-    dev = np.linalg.norm(x[:, legs.ravel()] - near, axis=2)
+    dev = point_norms(x[:, legs.ravel()] - near)
     if np.mean(dev[np.isfinite(dev)] > cfg.wild_m) > cfg.max_wild_fraction:
         # mostly wild samples (not a sensor's folded legs): no floor or anchor can be trusted
         return x, np.zeros(len(x)), float("nan")

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .points import point_norms
+
 
 __all__ = ["SwapConfig", "undo_limb_swaps"]
 
@@ -69,8 +71,8 @@ def undo_limb_swaps(
         # predicts frames 1..T-1: frame 1 from frame 0 alone (no velocity yet), so a swap that
         # begins on a take's second frame is seen beginning
         pred = np.concatenate([x[:1, both], 2.0 * x[1:-1, both] - x[:-2, both]])
-        keep = np.linalg.norm(x[1:, both] - pred, axis=2)
-        cross = np.linalg.norm(x[1:, mirrored] - pred, axis=2)
+        keep = point_norms(x[1:, both] - pred)
+        cross = point_norms(x[1:, mirrored] - pred)
         # joints seen in all three frames, both labellings; a frame is judged on at least half
         # of them (one joint the engine left out of a window's clean history must not hide
         # the toggle where a swap that began before the window ends)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.isometry import bone_lengths_per_frame, length_mode_with_support, symmetric_lengths, thrown_twins
+from ..core.points import point_norms
 from .bodies import (
     BONE_HISTORY_S,
     BONE_OWN_SUPPORT_S,
@@ -42,7 +43,7 @@ def record_raw_bones(body: Body, bones: np.ndarray) -> None:
         return
     seg = slice(first - win.start, win.end - win.start)
     pos = win.positions[seg]
-    lengths = np.linalg.norm(pos[:, bones[:, 1]] - pos[:, bones[:, 0]], axis=2)
+    lengths = point_norms(pos[:, bones[:, 1]] - pos[:, bones[:, 0]])
     conf = win.confidence[seg]
     low = np.minimum(conf[:, bones[:, 0]], conf[:, bones[:, 1]])
     rows = np.arange(first, win.end) % len(body.raw_bones)

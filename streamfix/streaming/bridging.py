@@ -179,6 +179,7 @@ from ..core.excursion import (EXCURSION_GAIN, EXCURSION_HORIZON_S, anchor_refere
                               parents_from_bones, travel_speed)
 from ..core.interpolate import missing_run_lengths
 from ..core.isometry import seen_bone_lengths
+from ..core.points import finite_points
 from ..limbs import mirror_bones
 from ..skeletons import CAMERA_SPACE_SKELETONS, Skeleton
 from .frozen_release import ReleaseState, frozen_release, limb_layout, split_state
@@ -428,7 +429,7 @@ class BridgingWindowSolver:
         """
         gain = self.excursion_gain if excursion_gain == "default" else excursion_gain
         x = np.asarray(positions, dtype=np.float64)
-        obs = np.asarray(observed, dtype=bool) & np.isfinite(x).all(axis=2)
+        obs = np.asarray(observed, dtype=bool) & finite_points(x)
         T, J = obs.shape
         counts: dict[str, int] = {}
         out = np.where(obs[..., None], x, np.nan)
@@ -441,7 +442,7 @@ class BridgingWindowSolver:
         ctx = np.zeros((0, J, 3)) if h is None else h[-int(self.context_windows * T):]
         C = len(ctx)
         ext = np.concatenate([ctx, x])
-        ext_obs = np.concatenate([np.isfinite(ctx).all(axis=2), obs])
+        ext_obs = np.concatenate([finite_points(ctx), obs])
         ext_long = long_missing_mask(ext_obs, rate_hz, T)
         todo = ext_long[C:]
         if not todo.any():
@@ -460,7 +461,7 @@ class BridgingWindowSolver:
                 from ..core.corotating import corotating_blackouts
 
                 temporal = corotating_blackouts(temporal, ext_obs)
-            use = closed & np.isfinite(temporal[C:]).all(axis=2)
+            use = closed & finite_points(temporal[C:])
             out[use] = temporal[C:][use]
             done |= use
             counts["time"] = int(use.sum())
@@ -475,7 +476,7 @@ class BridgingWindowSolver:
             from ..core.interpolate import interpolate_linear
 
             guess, ok = interpolate_linear(np.where(ext_obs[..., None], ext, np.nan), ext_obs)
-            use_short = short & ok & np.isfinite(guess).all(axis=2)
+            use_short = short & ok & finite_points(guess)
             ext = np.where(use_short[..., None], guess, ext)
             ext_obs = ext_obs | use_short
         limited = np.zeros_like(done)  # fills the excursion limit applies to (see excursion_sources)
@@ -513,7 +514,7 @@ class BridgingWindowSolver:
             if est is None:
                 continue
             est, mask = est[C:], mask[C:]
-            use = left & mask & np.isfinite(est).all(axis=2)
+            use = left & mask & finite_points(est)
             out[use] = est[use]
             done |= use
             if use.any() and (src in self.excursion_sources or (src == "prior" and self.prior_limited_limbs)):
@@ -547,7 +548,7 @@ class BridgingWindowSolver:
         empty = ~obs.any(axis=0) & ~done.any(axis=0)
         if empty.any() and history is not None and len(history):
             h = np.asarray(history, dtype=np.float64)
-            fin = np.isfinite(h).all(axis=2)
+            fin = finite_points(h)
             has = fin.any(axis=0) & empty
             if has.any():
                 last = (len(h) - 1) - np.argmax(fin[::-1], axis=0)  # newest finite frame per joint
@@ -567,7 +568,7 @@ class BridgingWindowSolver:
         h = np.asarray(history)
         if h.ndim != 3 or len(h) == 0:
             return False
-        fin = np.isfinite(h).all(axis=2)
+        fin = finite_points(h)
         need = max(1, int(round(self.min_history_s * rate_hz)))
         return int((fin[:, joints].all(axis=1) & (fin.sum(axis=1) >= BLACKOUT_JOINTS)).sum()) >= need
 
@@ -612,7 +613,7 @@ class BridgingWindowSolver:
         skeleton: Skeleton | None = None,
     ) -> Any:
         x = np.asarray(positions, dtype=np.float64)
-        finite = np.isfinite(x).all(axis=2)
+        finite = finite_points(x)
         conf = finite.astype(np.float64) if confidence is None else np.where(finite, confidence, 0.0)
         obs = conf > 0
         replaced = None  # (T, J) samples the stages below replaced: flagged recovered
@@ -683,7 +684,7 @@ class BridgingWindowSolver:
                 # put back on the parent from the offsets around the run, a low-confidence
                 # observation the window pipeline smooths with the rest (no solver run for it)
                 x = parent_relative_fill(x, dislocated, obs, bones, bone_lengths)
-                placed = dislocated & np.isfinite(x).all(axis=2)
+                placed = dislocated & finite_points(x)
                 conf = np.where(placed, self.fill_confidence, np.where(dislocated, 0.0, conf))
                 x = np.where((dislocated & ~placed)[..., None], np.nan, x)
                 obs = conf > 0

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core.points import finite_points
 from ..core.pose_bias import PoseBiasModel, remove_pose_bias
 from ..frames import BodyFrame
 from .bodies import RECOVERED_CONFIDENCE, Body, StreamState
@@ -104,7 +105,7 @@ def finalise_frames(
             recw = np.divide(body.recw[k_p], den, out=np.zeros_like(den), where=have)
             rec = np.where(have, ~valid | (recw > 0.5), body.live_rec[k_p] | ~valid)
         conf = np.where(rec, RECOVERED_CONFIDENCE, body.conf[k_p])
-        finite = np.isfinite(pos).all(axis=2)
+        finite = finite_points(pos)
         if not finite.all():
             conf = np.where(finite, conf, 0.0)
         emitted = pos

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import kernels
+from ..core.points import finite_points, point_norms
 
 __all__ = ["WindowCarry", "CARRY_MIN_M", "CARRY_MAX_S", "CONFIRM_S", "CROSSFADE_S"]
 
@@ -85,8 +86,8 @@ class WindowCarry:
         the last frame (a joint the live path already mended, a spike it gated, is left to it)."""
         n = min(self.confirm_frames, len(solved))
         solved, raw = np.asarray(solved[-n:], dtype=np.float64), np.asarray(raw[-n:], dtype=np.float64)
-        seen = np.asarray(valid[-n:], dtype=bool) & np.isfinite(raw).all(axis=2)
-        off = np.linalg.norm(np.where(seen[..., None], solved - raw, 0.0), axis=2) >= CARRY_MIN_M
+        seen = np.asarray(valid[-n:], dtype=bool) & finite_points(raw)
+        off = point_norms(np.where(seen[..., None], solved - raw, 0.0)) >= CARRY_MIN_M
         held = (np.asarray(judged[-n:], dtype=bool) & (off | ~seen)).all(axis=0) & np.isfinite(solved[-1]).all(axis=1)
         solved = solved[-1]
         row = frame % len(self.shown_frame)

@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..core.points import finite_points
 from ..frames import BodyFrame, SkeletonFrame
 from ..motion import Motion
 from .engine import EngineConfig, StreamEngine, WindowSolver
@@ -110,7 +111,7 @@ def clean_motion(
             conf[k] = b.confidence
             rec[k] = b.recovered if b.recovered is not None else False
     # a recovered joint is data now: give it the "inferred" confidence if it had none
-    finite = np.isfinite(pos).all(axis=2)
+    finite = finite_points(pos)
     conf = np.where(finite & (conf <= 0), 0.5, conf)
     if not keep_filled and len(frames) == motion.n_frames:
         times = np.asarray(motion.timestamps, dtype=np.float64).copy()  # bit-exact input times

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.interpolate import neighbour_observations
+from ..core.points import finite_points, point_norms
 from .bodies import Body, Job
 from .blending import FILL_DISTANCE_M, crossfade_frames, handover_weights, smooth_blended
 from .config import EngineConfig
@@ -47,7 +48,7 @@ def blend_window(body: Body, job: Job, prev_end: int, cfg: EngineConfig,
     x = job.result_pos[lo - job.start:]
     r = job.result_rec[lo - job.start:].astype(np.float64)
     rows = np.arange(lo, job.end) % body.cap
-    finite = np.isfinite(x).all(axis=2)
+    finite = finite_points(x)
     wj = np.where(finite, w[:, None], 0.0)  # (n, J)
     informed = closed_gaps(body.valid[rows])  # the joint seen again by the window's end
     if job.released is not None:
@@ -129,5 +130,5 @@ def fill_mask(body: Body, rows: np.ndarray) -> np.ndarray:
     centimetres, keep the narrow one, so jitter on tracked joints is not traded for lag."""
     den = body.den[rows]
     with np.errstate(invalid="ignore"):
-        near = np.linalg.norm(body.mean[rows] - body.raw[rows], axis=2) < FILL_DISTANCE_M  # NaN raw: not near
+        near = point_norms(body.mean[rows] - body.raw[rows]) < FILL_DISTANCE_M  # NaN raw: not near
     return (body.recw[rows] > 0.5 * den) & (den > 0) & ~near

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.points import finite_points
+
 __all__ = ["RingBuffer", "RingWindow"]
 
 
@@ -92,7 +94,7 @@ class RingBuffer:
         """Append ``n`` frames at once (``(n, J, 3)``, ``(n, J)``, ``(n,)``): the same rows as
         :meth:`push` on each in turn. Returns the frames as stored (positions NaN and
         confidence 0 where missing, and the valid mask), all ``n`` of them."""
-        valid = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
+        valid = (np.asarray(confidence) > 0) & finite_points(positions)
         pos = np.where(valid[..., None], positions, np.nan)
         conf = np.where(valid, confidence, 0.0)
         stored = (pos, conf, valid)

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.points import finite_points, point_norms
 from .solver_api import WindowOutput, WindowSolver, WindowSolverError
 
 __all__ = ["alm_window_solver", "default_window_solver", "wants", "with_max_iterations", "with_score_frames"]
@@ -31,9 +32,9 @@ def alm_window_solver(
     from ..core.alm import SolverParams, solve
 
     params = config if config is not None else SolverParams()
-    observed = (np.asarray(confidence) > 0) & np.isfinite(positions).all(axis=2)
+    observed = (np.asarray(confidence) > 0) & finite_points(positions)
     res = solve(positions, observed, bones, bone_lengths, params, init=init, state=state)
-    err = np.linalg.norm(np.nan_to_num(res.sparse_error), axis=2)
+    err = point_norms(np.nan_to_num(res.sparse_error))
     recovered = ~observed | (err > 0.02)
     return WindowOutput(res.positions, recovered, res.state, int(res.iterations), bool(res.converged))
 
