@@ -307,7 +307,8 @@ def test_warm_up_compiles_every_kernel():
     kernels.warm_up()
     dispatchers = [f for f in vars(kernels).values() if isinstance(f, numba.core.registry.CPUDispatcher)]
     # helpers called only from inside other kernels are compiled with them
-    helpers = ("_solve3_first_py", "_sorted_median", "_tukey_weights_loop", "_sorted_shorth_mode", "_sorted_densest_mode",
+    helpers = ("_solve3_first_py", "_sorted_median", "_running_median_loop", "_running_median_wide_loop",
+               "_tukey_weights_loop", "_sorted_shorth_mode", "_sorted_densest_mode",
                "_sorted_finite", "_select_inplace", "_select_median", "_rank_median", "_release_rigid_loop",
                "_unit_into", "_pose_bias_frame_loop")
     called = [f for f in dispatchers if f.py_func.__name__ not in helpers]

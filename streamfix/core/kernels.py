@@ -1660,7 +1660,6 @@ def warm_up() -> None:
     lengths = np.array([0.5, 0.5])
     local_poly(np.nan_to_num(x.reshape(12, 9)), w, 2)
     running_median(x, 5)
-    running_median(np.repeat(x, 2, axis=1), 5)  # 18 channels: the branch-free loop
     detrended_edges(x, x, 5)
     robust_temporal_fit(x, np.isfinite(x).all(axis=2).astype(float), 2)
     finite = np.nan_to_num(x)
