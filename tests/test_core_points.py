@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from streamfix.core.points import all_xyz, any_xyz, finite_points, point_norms
+from streamfix.core.points import all_xyz, any_xyz, finite_points, point_dots, point_norms
 
 
 def test_point_norms_equal_numpy_norm_bit_for_bit_with_missing_and_infinite_points():
@@ -35,3 +35,12 @@ def test_arrays_that_are_not_points_are_refused_with_their_shape(shape):
         point_norms(np.zeros(shape))
     with pytest.raises(ValueError, match=r"\(\.\.\., 3\)"):
         all_xyz(np.zeros(shape, dtype=bool))
+
+
+def test_point_dots_equal_the_summed_products_bit_for_bit_and_broadcast():
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(40, 6, 3))
+    b = rng.normal(size=(40, 6, 3))
+    a[2, 2, 1] = np.nan
+    assert np.array_equal(point_dots(a, b), (a * b).sum(axis=-1), equal_nan=True)
+    assert np.array_equal(point_dots(a, b[0]), (a * b[0]).sum(axis=-1), equal_nan=True)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["point_norms", "all_xyz", "any_xyz", "finite_points"]
+__all__ = ["point_norms", "point_dots", "all_xyz", "any_xyz", "finite_points"]
 
 
 def _check_xyz(a: np.ndarray) -> None:
@@ -28,6 +28,19 @@ def point_norms(v: np.ndarray) -> np.ndarray:
     sq += v[..., 1] * v[..., 1]
     sq += v[..., 2] * v[..., 2]
     return np.sqrt(sq, out=sq) if np.ndim(sq) else np.sqrt(sq)  # one point: a scalar
+
+
+def point_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Dot product of each pair of vectors ``a``, ``b`` ``(..., 3)`` (broadcast) -> ``(...)``;
+    the values of ``(a * b).sum(axis=-1)``."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    _check_xyz(a)
+    _check_xyz(b)
+    out = a[..., 0] * b[..., 0]
+    out = out + a[..., 1] * b[..., 1]
+    out += a[..., 2] * b[..., 2]
+    return out
 
 
 def all_xyz(mask: np.ndarray) -> np.ndarray:

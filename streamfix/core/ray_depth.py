@@ -52,7 +52,7 @@ from .bone_rotations import depth_levels
 from .excursion import bone_into, parents_from_bones
 from .interpolate import interpolate_linear, neighbour_observations
 from .isometry import thrown_twins
-from .points import finite_points, point_norms
+from .points import finite_points, point_dots, point_norms
 from .robust_stats import nanmedian
 
 __all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "MAX_BONE_M", "STALE_S", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
@@ -310,11 +310,11 @@ def repair_ray_depth(
             p, L = parents[level], length[level]
             dist = point_norms(x[:, level])
             u = x[:, level] / np.where(dist > 0, dist, 1.0)[..., None]  # unit ray through the joint
-            along = (u * x[:, p]).sum(axis=2)  # s of the ray's point nearest the parent
-            miss2 = (x[:, p] ** 2).sum(axis=2) - along ** 2  # squared distance of that point to the parent
+            along = point_dots(u, x[:, p])  # s of the ray's point nearest the parent
+            miss2 = point_dots(x[:, p], x[:, p]) - along ** 2  # squared distance of that point to the parent
             reach = L * (1.0 + ray_slack) + RAY_NOISE_M
             off = x[:, level] - expected(level)  # NaN: no good sample
-            departure = (off * u).sum(axis=2)
+            departure = point_dots(off, u)
             sideways = point_norms(off - departure[..., None] * u)
             departure = np.abs(departure)
             # thrown along the ray: far from where the joint is expected, and mostly along the ray
