@@ -390,8 +390,9 @@ def running_median(
     the mean of the two middle ones for even ``n`` -- the same values as ``np.median``
     / ``np.nanmedian`` (bit for bit), at 5-8x their speed on a 60-frame window
     (``nanmedian`` of small arrays goes through masked arrays). With numba installed the
-    compiled :func:`streamfix.core.kernels.running_median` (a sorted window updated frame
-    by frame) gives the same values bit for bit; this numpy version is its reference.
+    compiled :func:`streamfix.core.kernels.running_median` (a sorted window per channel updated
+    frame by frame, branch-free across channels for wide arrays) gives the same values bit for
+    bit; this numpy version is its reference.
     """
     x = np.asarray(positions, dtype=np.float64).copy()
     if observed is not None:
