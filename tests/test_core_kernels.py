@@ -95,6 +95,16 @@ def test_running_median_kernel_with_ties_and_infinities(window):
     assert np.array_equal(kernels.running_median(x, window), ref, equal_nan=True)
 
 
+def test_running_median_kernel_on_takes_shorter_than_the_window():
+    rng = np.random.default_rng(7)
+    for n_frames in (1, 2, 5):
+        for window in (1, 2, 5, 19):
+            x = rng.normal(size=(n_frames, 20, 3))  # 60 channels: the branch-free loop
+            x[rng.random(x.shape) < 0.3] = np.nan
+            assert np.array_equal(kernels.running_median(x, window),
+                                  filters._running_median_numpy(x.copy(), window), equal_nan=True)
+
+
 def test_pbd_kernel_matches_numpy_reference(kinect):
     x, conf, bones = kinect
     x = x[:100]
