@@ -48,6 +48,8 @@ from functools import lru_cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .points import finite_points, point_dots, point_norms
+
 __all__ = [
     "parent_array",
     "topological_order",
@@ -200,7 +202,7 @@ def _plan(parents_bytes: bytes, offsets_bytes: bytes, n: int, primary: tuple) ->
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.sqrt((v * v).sum(axis=-1, keepdims=True))
+    n = point_norms(v)[..., None]
     return v / np.where(n > 0, n, 1.0)
 
 
@@ -209,10 +211,6 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
                      a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
                      a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return (a * b).sum(axis=-1)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -226,7 +224,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 def _swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``(..., 3, 3)`` shortest rotations taking unit vectors ``a`` onto ``b`` (both ``(..., 3)``)."""
     K = _skew(_cross(a, b))
-    c = _dot(a, b)
+    c = point_dots(a, b)
     opposite = c < -1.0 + 1e-9
     R = np.eye(3) + K + (K @ K) / np.where(opposite, 1.0, 1.0 + c)[..., None, None]
     if opposite.any():  # half turn about any axis perpendicular to a
@@ -286,7 +284,7 @@ def solve_rotation_matrices(
             owner = nodes[w]
             rest = _unit(np.einsum("tmij,mj->tmi", Gpw, lev["aim_rest"]))
             d = X[:, lev["aim"]] - X[:, owner]
-            ok = np.isfinite(d).all(axis=-1) & (_dot(d, d) > 0)
+            ok = finite_points(d) & (point_dots(d, d) > 0)
             da = np.where(ok[..., None], _unit(np.nan_to_num(d)), rest)
             G0 = _swing(rest, da) @ Gpw
             if len(lev["sec"]):  # twist about the primary bone that best aligns the other targets
@@ -294,10 +292,10 @@ def solve_rotation_matrices(
                 p = np.einsum("tkij,kj->tki", G0[:, so], lev["sec_rest"])
                 q = np.nan_to_num(X[:, lev["sec"]] - X[:, owner[so]])
                 axis = da[:, so]
-                p_perp = p - _dot(p, axis)[..., None] * axis
-                q_perp = q - _dot(q, axis)[..., None] * axis
-                sin = _dot(axis, _cross(p_perp, q_perp)) @ lev["sec_sum"]
-                cos = _dot(p_perp, q_perp) @ lev["sec_sum"]
+                p_perp = p - point_dots(p, axis)[..., None] * axis
+                q_perp = q - point_dots(q, axis)[..., None] * axis
+                sin = point_dots(axis, _cross(p_perp, q_perp)) @ lev["sec_sum"]
+                cos = point_dots(p_perp, q_perp) @ lev["sec_sum"]
                 angle = np.where(ok & lev["twisted"], np.arctan2(sin, cos), 0.0)
                 G0 = _axis_angle(da, angle) @ G0
             Gl[:, w] = G0
