@@ -68,7 +68,8 @@ class EngineConfig:
     ``(B,)`` bone lengths in metres (None = estimated robustly per body); the window
     cleaner still leaves tracked bones their length play around them unless its config
     says ``projection_tolerance=0`` (``streamfix clean --skeleton-lengths`` does).
-    degrade: allow degradation in threaded mode. degraded_iterations: iterations at
+    degrade: allow degradation in threaded mode (and skip a starting body's extra windows
+    while other windows wait for the solver). degraded_iterations: iterations at
     level 1 (None = half of max_iterations, or 10 if that is None). max_hop: hop at the
     deepest level (None = W // 2). max_pending_windows: windows queued per tracked body beyond which
     new windows are skipped. max_clean_delay_s: how long beyond the lookahead a frame may

@@ -90,6 +90,11 @@ class SolverPool:
         """How many ordinals :meth:`next_body_ordinal` has handed out."""
         return self._bodies
 
+    @property
+    def queued(self) -> int:
+        """Tasks submitted and not yet taken by a thread (a snapshot: threads take them meanwhile)."""
+        return self._tasks.qsize()
+
     def _work(self) -> None:
         lower_priority()  # the live path first (module doc)
         while True:
