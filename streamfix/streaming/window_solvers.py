@@ -71,11 +71,14 @@ def wants(solver: WindowSolver, flag: str) -> bool:
 
 def import_solver_modules() -> None:
     """Import the modules the default solver imports lazily inside its windows (the prior's
-    initialiser, the dislocated-limb repair, PCA's rigid pairs): about 25 ms that an import
-    would otherwise spend holding the GIL, and the interpreter's import lock, in a solver
-    thread the first time a window needs one, while the live path waits. Loads no model."""
-    from ..core import dislocated, pca_gapfill  # noqa: F401
-    from ..prior import init  # noqa: F401
+    initialiser and latent fit, the swap, support, jump and dislocated-limb stages, PCA's
+    fill): tens of ms that an import would otherwise spend holding the GIL, and the
+    interpreter's import lock, in a solver thread the first time a window needs one, while
+    the live path waits (``tests/test_window_solvers_preload.py`` checks that a stream's
+    windows import nothing after this). Loads no model."""
+    from ..core import dislocated, limb_jumps, pca_fill, pca_gapfill, support  # noqa: F401
+    from ..prior import init, latent  # noqa: F401
+    from . import support as window_support, swaps  # noqa: F401
 
 
 def _default_config(solver: WindowSolver) -> Any:
