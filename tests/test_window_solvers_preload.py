@@ -1,6 +1,6 @@
 """``prepare_streamfix_engine`` (serve, before its first frame) imports everything a stream's
-windows import: an import in the solver thread holds the GIL and the import lock for tens of
-ms while the live path waits (a 40-90 ms window in bench_service's profile, mid-stream)."""
+windows import: an import in the solver thread holds the GIL and the import lock while the
+live path waits, mid-stream."""
 from __future__ import annotations
 
 import subprocess

@@ -796,9 +796,9 @@ class StreamEngine:
         """The hop (frames) to a starting body's next window: ``cfg.startup_hop`` while the solver
         keeps up, else the hop (no extra window).
 
-        Bodies that appear together all start together: with 30 bodies the extra windows doubled
-        the solver's work for their first 2 s, and serve's clean output fell ~0.5 s behind for 5 s
-        (bench_service). Extras only refine a new body's first seconds, so under the overload
+        Bodies that appear together all start together: their extra windows multiply the solver's
+        work for their first ``window`` frames, and with many bodies serve's clean output fell behind
+        for seconds (bench_service). Extras only refine a new body's first seconds, so under the overload
         policy (``cfg.degrade``, threaded) they are solved only when no window of any engine waits
         in the shared pool's queue. Synchronous engines (files) and ``degrade=False``: always.
         """
