@@ -88,7 +88,7 @@ class WindowCarry:
         solved, raw = np.asarray(solved[-n:], dtype=np.float64), np.asarray(raw[-n:], dtype=np.float64)
         seen = np.asarray(valid[-n:], dtype=bool) & finite_points(raw)
         off = point_norms(np.where(seen[..., None], solved - raw, 0.0)) >= CARRY_MIN_M
-        held = (np.asarray(judged[-n:], dtype=bool) & (off | ~seen)).all(axis=0) & np.isfinite(solved[-1]).all(axis=1)
+        held = (np.asarray(judged[-n:], dtype=bool) & (off | ~seen)).all(axis=0) & finite_points(solved[-1])
         solved = solved[-1]
         row = frame % len(self.shown_frame)
         if self.shown_frame[row] == frame:
@@ -99,7 +99,7 @@ class WindowCarry:
         rooted = p >= 0
         base = np.where(rooted[:, None], solved[np.maximum(p, 0)], np.nan)
         # a joint is placed from its parent (a root, and a joint whose parent the window lacks: not carried)
-        held &= rooted & np.isfinite(base).all(axis=1)
+        held &= rooted & finite_points(base)
         self.held = held
         self.offset = np.where(held[:, None], solved - np.where(np.isfinite(base), base, 0.0), self.offset)
         self.age = 0
@@ -129,7 +129,7 @@ class WindowCarry:
         for c in active.tolist():
             carried[c] = carried[self.parent[c]] + self.offset[c]
         raw_a = raw[active]
-        seen = np.asarray(valid, dtype=bool)[active] & np.isfinite(raw_a).all(axis=1)
+        seen = np.asarray(valid, dtype=bool)[active] & finite_points(raw_a)
         near = np.linalg.norm(np.where(seen[:, None], raw_a - carried[active], np.inf), axis=1) < CARRY_MIN_M
         held = self.held[active] & ~(seen & near)  # the sensor has the joint again: its own value from here on
         self.held[active] = held

@@ -76,7 +76,7 @@ class RingBuffer:
         j = i + self.capacity
         pos = self._pos
         pos[i] = positions
-        valid = (np.asarray(confidence) > 0) & np.isfinite(pos[i]).all(axis=1)
+        valid = (np.asarray(confidence) > 0) & finite_points(pos[i])
         if valid.all():  # the usual frame: nothing to blank
             pos[j] = pos[i]
             self._conf[i] = self._conf[j] = confidence
