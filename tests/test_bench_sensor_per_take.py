@@ -38,3 +38,19 @@ def test_per_take_counts_wins_against_the_bars_baseline_and_names_the_worst(benc
     assert row["worst_take"].endswith("short.bvh") and row["worst_seed"] == 0
     md = bench_sensor.markdown({}, {}, bars, {"takes": 2, "seeds": 2, "rate_hz": 30.0}, [row])
     assert "| noise | streamfix | butterworth | 2/3 | 1.250 |" in md
+
+
+def test_the_takes_the_prior_did_not_train_on_come_from_its_card(bench_sensor, shared_data):
+    """The shared BVH takes split by the shipped prior's model card, and the section that shows the
+    corrupted joint-frames' means of the unseen ones."""
+    from streamfix.prior.runtime import load_default_prior
+
+    files = sorted((shared_data / "cmu_bvh").glob("*.bvh")) + sorted((shared_data / "xia_bvh").glob("*.bvh"))
+    held = set(load_default_prior().card["training"]["held_out"])
+    unseen = bench_sensor.prior_held_out_takes(files)
+    assert unseen and len(unseen) < len(files)  # the card names some of these takes, not all
+    assert {f.stem for f in unseen} == {f.stem for f in files} & held
+    summary = {"noise": {"streamfix": {"err_m": 0.021, "err_corrupted_m": 0.020}}}
+    md = bench_sensor.markdown(summary, {}, [], {"takes": 1, "seeds": 1, "rate_hz": 30.0}, [],
+                               {"takes": [str(unseen[0])], "summary": summary})
+    assert "did not train on" in md and md.rstrip().endswith("| noise | 20.0 |")
