@@ -431,3 +431,48 @@ def test_a_reference_that_followed_the_throw_does_not_hide_it():
     np.testing.assert_allclose(y[0, 2], POSE[2], atol=1e-9)
     good = np.repeat(POSE[None], 1, axis=0)  # a reference where the arm is whole still decides
     assert repair_ray_depth(x, conf, ARM, ARM_LENGTHS, reference=good)[1][0, 2]
+
+
+@pytest.mark.parametrize("take", ["seated_joints", "Ges03_drawlines"])
+def test_the_live_paths_shortcut_spares_the_repair_only_where_it_would_move_nothing(shared_data, take, monkeypatch):
+    """On a frame with a stretched bone the live path asks ``reference_rules_out_throws`` before
+    running the repair (0.3-1 ms on one frame): real Kinect v2 takes whose noise stretches a
+    short bone now and then give the same live output as with the repair run on every such
+    frame, and the shortcut answers for some of those frames, not all."""
+    m = read_motion(shared_data / "kinect_v2" / f"{take}.csv")
+    answers = []
+    rule = ray_depth.reference_rules_out_throws
+
+    def counted(*args, **kwargs):
+        answers.append(rule(*args, **kwargs))
+        return answers[-1]
+
+    monkeypatch.setattr(ray_depth, "reference_rules_out_throws", counted)
+    fast = run_method("streamfix_live", m.positions, m.confidence, BONES, m.rate_hz, skeleton=KINECT_V2)
+    assert any(answers) and not all(answers), answers
+    monkeypatch.setattr(ray_depth, "reference_rules_out_throws", lambda *a, **k: False)
+    full = run_method("streamfix_live", m.positions, m.confidence, BONES, m.rate_hz, skeleton=KINECT_V2)
+    np.testing.assert_array_equal(fast, full)
+
+
+def test_a_throw_is_never_ruled_out_and_a_noisy_bone_near_its_reference_is(thrown):
+    truth, x, conf, mask = thrown
+    from streamfix.core.excursion import bone_into
+
+    into = bone_into(BONES, KINECT_V2.n_joints)
+    child = np.flatnonzero(into >= 0)
+    parent, length = BONES[into[child], 0], _lengths(truth)[into[child]]
+    seen = conf > 0
+    for t in np.flatnonzero(mask.any(axis=1)):  # every thrown frame, judged against the truth
+        assert not ray_depth.reference_rules_out_throws(x[t], seen[t], child, parent, length, truth[t])
+    t, j = 40, KINECT_V2.index("HandTipRight")
+    frame = truth[t].copy()
+    frame[j] = truth[t, KINECT_V2.index("HandRight")] + 3.0 * (truth[t, j] - truth[t, KINECT_V2.index("HandRight")])
+    hand_tip = length[list(child).index(j)]
+    bone = np.linalg.norm(frame[j] - frame[KINECT_V2.index("HandRight")])
+    assert bone - hand_tip > max(ray_depth.FRACTION * hand_tip, ray_depth.FLOOR_M)  # stretched...
+    assert np.linalg.norm(frame[j] - truth[t, j]) < ray_depth.MIN_DEPARTURE_M  # ... near where it was
+    assert ray_depth.reference_rules_out_throws(frame, seen[t], child, parent, length, truth[t])
+    _, moved = repair_ray_depth(frame[None], conf[t][None], BONES, _lengths(truth), reference=truth[t][None])
+    assert not moved.any()
+    assert not ray_depth.reference_rules_out_throws(frame, seen[t], child, parent, length, np.full_like(frame, np.nan))

@@ -55,7 +55,7 @@ from .isometry import thrown_twins
 from .points import finite_points, point_dots, point_norms
 from .robust_stats import nanmedian
 
-__all__ = ["repair_ray_depth", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "MAX_BONE_M", "STALE_S", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
+__all__ = ["repair_ray_depth", "reference_rules_out_throws", "provisional_lengths", "PROVISIONAL_MIN_FRAMES", "PROVISIONAL_FLOOR_M", "MAX_BONE_M", "STALE_S", "FRACTION", "FLOOR_M", "RAY_SLACK", "RAY_NOISE_M", "MIN_DEPARTURE_M", "SIDEWAYS_RATIO",
            "PROXIMAL_FRACTION", "MIN_SENSOR_DISTANCE_M", "CHILD_FIT", "CHILD_MARGIN_M"]
 
 FRACTION = 0.5
@@ -198,6 +198,48 @@ def _children_choose(x: np.ndarray, seen: np.ndarray, length: np.ndarray, kids: 
     n_used = use.sum(axis=2)
     told = (n_used > 0) & (np.minimum(cost_near, cost_far) <= tol) & (np.abs(cost_near - cost_far) > CHILD_MARGIN_M * n_used)
     return told, cost_near < cost_far
+
+
+def reference_rules_out_throws(
+    frame: np.ndarray,
+    seen: np.ndarray,
+    child: np.ndarray,
+    parent: np.ndarray,
+    length: np.ndarray,
+    reference: np.ndarray,
+    *,
+    floor_m: float = FLOOR_M,
+) -> bool:
+    """True when :func:`repair_ray_depth` of this one frame, judged against ``reference``, would
+    move no joint; False when it might (then run it).
+
+    Why: a live path calls the repair on the frames with a stretched bone (a Kinect's noise
+    stretches a hand tip's 8 cm bone now and then), and the repair, made for windows, costs
+    0.3-1 ms on one frame where the live step itself costs 0.05. A stretched joint is moved
+    only when its sample departs from where it is expected by more than
+    ``max(FRACTION L, MIN_DEPARTURE_M)`` along its ray, and a departure along the ray is at
+    most the sample's distance from the reference: a joint within that distance of its
+    reference (finite, and not itself stretched from its parent: the repair then expects
+    nothing) is left alone, and with no joint moved no child is judged anew.
+
+    ``frame`` ``(J, 3)`` m, ``seen`` ``(J,)`` bool (observed and finite), ``reference`` ``(J, 3)``
+    m (the last output); ``child``, ``parent`` ``(n,)`` int and ``length`` ``(n,)`` m: each
+    judged joint, the parent it is judged from (:func:`~streamfix.core.excursion.bone_into`'s
+    bone) and that bone's length (NaN: not judged). ``floor_m`` as the repair's.
+    """
+    judged = np.isfinite(length) & (length > 0)
+    bone = point_norms(frame[child] - frame[parent])
+    with np.errstate(invalid="ignore"):
+        stretched = seen[child] & seen[parent] & judged & (bone - length > np.maximum(FRACTION * length, floor_m))
+    if not stretched.any():
+        return True
+    c, p, L = child[stretched], parent[stretched], length[stretched]
+    ref, ref_p = reference[c], reference[p]
+    with np.errstate(invalid="ignore"):
+        ref_stretched = point_norms(ref - ref_p) - L > np.maximum(FRACTION * L, floor_m)
+        # a hair inside the bound: the repair's departure is a dot product with a unit ray, rounded
+        near = point_norms(frame[c] - ref) <= np.maximum(FRACTION * L, MIN_DEPARTURE_M) * (1.0 - 1e-9)
+    return bool((finite_points(ref) & ~ref_stretched & near).all())
 
 
 def repair_ray_depth(

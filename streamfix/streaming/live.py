@@ -65,6 +65,7 @@ from ..core import kernels, ray_depth
 from ..core.excursion import bone_into
 from ..core.filters import HoltFilter as _HOLT
 from ..core.isometry import seen_bone_lengths
+from ..core.points import finite_points
 
 __all__ = ["LiveConfig", "LivePath", "tree_levels", "project_bone_lengths"]
 
@@ -390,6 +391,11 @@ class LivePath:
         length = lengths[self._ray_bone]
         bone = np.linalg.norm(x[self._ray_child] - x[self._ray_parent], axis=1)
         if not (bone - length > np.maximum(ray_depth.FRACTION * length, floor_m)).any():
+            return self._step(x, valid, t)
+        # a stretched bone whose joint stays near the last output is noise, not a throw: the same
+        # answer as the repair's at a fraction of its cost (most stretched frames of a Kinect)
+        if ray_depth.reference_rules_out_throws(x, valid & finite_points(x), self._ray_child, self._ray_parent, length,
+                                                self._last, floor_m=floor_m):
             return self._step(x, valid, t)
         # judged against the body's lengths and the last output (where each joint was expected)
         fixed, moved = ray_depth.repair_ray_depth(x[None], valid[None].astype(np.float64), self.bones, lengths,
