@@ -215,7 +215,7 @@ def reference_rules_out_throws(
 
     Why: a live path calls the repair on the frames with a stretched bone (a Kinect's noise
     stretches a hand tip's 8 cm bone now and then), and the repair, made for windows, costs
-    0.3-1 ms on one frame where the live step itself costs 0.05. A stretched joint is moved
+    several whole live steps on one frame. A stretched joint is moved
     only when its sample departs from where it is expected by more than
     ``max(FRACTION L, MIN_DEPARTURE_M)`` along its ray, and a departure along the ray is at
     most the sample's distance from the reference: a joint within that distance of its
