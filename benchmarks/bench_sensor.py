@@ -268,8 +268,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {t['kind']:<8} {t['method']:<16} {t['wins']:>3}/{t['cases']:<3} vs {t['baseline']:<13} "
               f"worst {t['worst_ratio']:.3f} ({t['worst_take']}, seed {t['worst_seed']})")
     held = prior_held_out_takes(files)
-    unseen = {"takes": [_shown(f) for f in held],
-              "summary": summarise([r for r in records if Path(r["file"]).stem in {f.stem for f in held}])}
+    held_paths = {str(f) for f in held}  # the records name their take as it was passed
+    unseen = {"takes": [_shown(f) for f in held], "summary": summarise([r for r in records if r["file"] in held_paths])}
     if held:
         print(f"\ncorrupted joint-frames (mm) on the takes the prior did not train on ({', '.join(f.stem for f in held)}):")
         for kind in SCORED_KINDS:
