@@ -521,6 +521,12 @@ class _QueuedPool:
         self._pool.submit(task)
 
 
+def _wait_for_worker(engine, timeout_s: float = 10.0) -> None:
+    """Block until every window ``engine`` submitted has been solved (bounded)."""
+    with engine._cond:
+        assert engine._cond.wait_for(lambda: engine._inflight == 0, timeout_s), "the solver pool stalled"
+
+
 @pytest.mark.parametrize("queued, degrade, extras", [(0, True, True), (3, True, False), (3, False, True)])
 def test_start_up_windows_wait_for_an_idle_solver(kinect, queued, degrade, extras):
     """A starting body's extra windows (every startup_hop frames) are solved only while no
@@ -532,7 +538,9 @@ def test_start_up_windows_wait_for_an_idle_solver(kinect, queued, degrade, extra
     engine._pool = _QueuedPool(engine._pool, queued)
     for f in itertools.islice(frames_of(kinect, uniform=True), 90):
         engine.push(f)
-        engine.poll()
+        engine.poll()  # submits the frame's window, if any
+        _wait_for_worker(engine)  # frames faster than the worker would raise the overload level
+    assert engine.level == 0  # only the pool's queue decides here
     scheduled = engine.metrics()["windows_scheduled"]
     engine.flush()
     engine.close()
