@@ -12,8 +12,8 @@ and the engine's learned prior and bone projection know nothing of a marker set.
 files go to the engine as they are: its bridge fills their long gaps from the body's clean
 history, the learned prior and time (:mod:`streamfix.streaming.bridging`). The filler ran on
 joint files with long gaps too until it was measured there: on the sensor protocol's limbs
-lost for 0.5-3 s it left 2.6x the engine's error (260 against 101 mm, and 3.3 against
-0.6 mm on the other joints), on the paper's gap protocol it won one of four cells.
+lost for 0.5-3 s it left far more error than the engine, there and on the other joints,
+and on the paper's gap protocol it mostly lost.
 Then the streaming engine runs in synchronous mode
 (:func:`streamfix.streaming.offline.clean_motion`) on the file schedule
 (:meth:`~streamfix.streaming.engine.EngineConfig.for_files`): the same window solver as

@@ -34,11 +34,10 @@ __all__ = ["fill_motion_gaps", "RIGID_PAIRS"]
 TRUST_KAPPA = 5.0
 """Skeleton takes: a gap's PCA fill keeps its departure from linear interpolation only
 where that departure is large against ``TRUST_KAPPA`` x the model's error at the gap's
-ends. Measured (Kinect v2, one limb blanked, MAE cm; linear in brackets): seated 3 s
-leg 12.6 -> 2.3 (1.8), still arm 45 f 2.4 -> 1.2 (1.2), arm moving in a 45 f gap with
-its hand tip seen 1.5 -> 1.8 (13.0), waving arm 1 s 2.8 -> 2.9 (24.3), another 1 s
-waving gap 16.8 -> 31.5 (32.8: the model missed its ends by 20-25 cm); kappa 3 / 4 / 6
-give seated 3.4 / 2.7 / 2.1 and the moving arm 1.5 / 1.6 / 2.1."""
+ends. Measured on Kinect v2 takes with one limb blanked: still limbs (a seated 3 s leg, a
+still arm) come out near linear, moving arms keep PCA's far smaller error than linear's,
+and a gap whose ends the model missed falls back to about linear's error; a larger kappa
+helps the seated leg and costs the moving arm."""
 
 RIGID_PAIRS = 60
 """Number of rigid marker pairs kept in range for marker sets (0 = no projection)."""
@@ -91,8 +90,8 @@ def fill_motion_gaps(
     scaled with the rate). ``excursion_gain``: filled joints stay within this many times
     their own range of motion over the 1 s next to the gap of the linear interpolation
     (:func:`~streamfix.core.excursion.limit_excursion`; None = off, the default:
-    measured on Kinect arm/leg gaps it brings a seated 3 s leg gap from 11.0 to 3.1 cm
-    (linear 1.8) but a 45-frame gap of an arm moving inside the gap from 1.3 to 11.7 cm,
+    measured on Kinect arm/leg gaps it helps a seated 3 s leg gap (still worse than linear)
+    but makes a 45-frame gap of an arm moving inside the gap far worse,
     because offline both ends are seen and the limb's motion *inside* the gap is not
     in its range next to the gap). ``trust_kappa``: each gap's PCA fill is shrunk toward
     linear interpolation unless its departure from linear is large against the model's
@@ -124,7 +123,7 @@ def fill_motion_gaps(
     gain = excursion_gain
     if gain is not None and filled.any():
         # a whole limb missing: PCA guesses its pose from coincidental correlations with
-        # the rest of the body (seated 3 s leg gap 11 cm, linear 1.8 cm); keep it near
+        # the rest of the body (a seated 3 s leg gap: far worse than linear); keep it near
         # linear unless the limb itself was moving
         ref = None
         if motion.skeleton.n_bones:

@@ -265,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     # the engine is ready (imports, compiled kernels, the prior) before the source opens: a
     # bound input socket or a stdin reader stamps frames as they arrive, and frames that waited
-    # for a first run's kernel compile (about 10 s after an install) were shed as too old
+    # for a first run's kernel compile (slow after an install) were shed as too old
     try:
         make_engine = engine_factory(args.engine, options)
     except ValueError as exc:

@@ -26,7 +26,7 @@ def motion_adaptive_smooth(y: np.ndarray, w: np.ndarray, rate_hz: float, window_
     blend (Lepski's rule with two bandwidths and an absolute tolerance). Why: slow
     rehabilitation movement wants 0.7 s (UI-PRMD against Vicon), a walking leg wants
     0.2 s: one fixed 0.7 s span made stylised walking with the sensor protocol's noise
-    2-3x *worse* than the unsmoothed input. The price: correlated sensor noise makes the
+    *worse* than the unsmoothed input. The price: correlated sensor noise makes the
     two fits part as much as motion does, so on slow movement the short fit wins more
     often than it should and the output keeps more jitter than a fixed long span would
     (``short_s=None`` gives that span to every joint, for slow-motion work such as

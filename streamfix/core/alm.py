@@ -37,24 +37,15 @@ signal: E absorbs all of D and A stays ~0 (AJE > 1 m). The penalties are not sca
 free, so we use the inexact-ALM rule of the paper's reference [45] (Lin, Chen & Ma):
 ``rho0 = 1.25 / ||D||_2`` (spectral norm of the observed, centred D), for all three.
 
-Measured (AJE in m, CMU 131_01 + 131_02, first 272 frames at 120 Hz, seeds 0-1,
-uniform [-0.25, 0.25] m noise on 5/10/15/20/80 % of the entries of D, bone lengths
-estimated from the corrupted input; paper Table II totals 0.004/0.006/0.007/0.010/0.067):
-
-    yang, defaults (centre 'global', detail_only) 0.0034 0.0049 0.0069 0.0099 0.166
-    centre 'none'                                 0.0035 0.0049 0.0070 0.0097 0.175
-    centre 'channel'                              0.0073 0.0088 0.0103 0.0129 0.161
-    detail_only=False                             0.0047 0.0065 0.0087 0.0122 0.168
-    centre 'none', detail_only=False (as printed) 0.0045 0.0062 0.0084 0.0115 0.175
-    rho0 = 0.5 (the paper's value)                0.181  0.186  0.191  0.196  0.280
-    eta = 1.1 (~65 iterations instead of ~31)     0.0023 0.0037 0.0058 0.0089 0.179
-    li                                            0.0035 0.0060 0.0095 0.0150 0.181
-    wang                                          0.0057 0.0088 0.0135 0.0213 0.196
-
-With the true bone lengths (as the paper does on CMU) yang gives 0.0033 0.0049 0.0068
-0.0099 0.093: at 80 % no clean frame is left to estimate lengths from. Whole takes
-(994 frames) at 120 Hz: 0.0025 0.0038 0.0055 0.0077 0.159; decimated to 30 Hz:
-0.0032 0.0051 0.0079 0.0116 0.170.
+Measured on CMU 131_01 + 131_02 (120 Hz, uniform [-0.25, 0.25] m noise on 5-80 % of the
+entries of D, bone lengths estimated from the corrupted input; paper Table II totals
+0.004/0.006/0.007/0.010/0.067): up to 20 % the defaults (centre 'global', detail_only)
+matched centre 'none' and beat centre 'channel', detail_only=False and the paper as printed
+(centre 'none', detail_only=False); the paper's rho0 = 0.5 failed at every level;
+eta = 1.1 was more accurate up to 20 % at about twice the iterations; 'li' (from 10 %) and
+'wang' were less accurate. At 80 % the true bone lengths (as the paper does on CMU) help
+most: no clean frame is left to estimate lengths from. ``benchmarks/bench_accuracy.py``
+compares the modes on the paper's protocol.
 """
 from __future__ import annotations
 
@@ -95,21 +86,18 @@ class SolverParams:
         'channel' (one mean per joint and coordinate).
     max_iter: iteration cap (the paper: 1000).
     tol: stop when the relative primal residual
-        ||(D - A - E)_obs, N - A, C - W A||_F / ||D_obs||_F drops below it. 1e-4 (~30
-        iterations at eta = 1.3) gave the same AJE to 0.1 mm as 1e-5 and 1e-7 on CMU
-        131_01/02 at 5-80 % corruption.
+        ||(D - A - E)_obs, N - A, C - W A||_F / ||D_obs||_F drops below it. 1e-4 gave
+        practically the same AJE as 1e-5 and 1e-7 on CMU 131_01/02 at 5-80 % corruption.
     gn_steps: Gauss-Newton steps per N-subproblem (Algorithm 1 line 4 does one).
     warm_skip: on a warm start, penalties restart at rho0 * eta**warm_skip, i.e. the
         first ``warm_skip`` penalty steps of a cold start are skipped. Restarting at the
         previous window's final rho does not work: the thresholds lam/rho and 1/sum(rho)
         are then ~0, E absorbs the new frames' data unshrunk and A stays at its
-        extrapolated guess (measured: AJE > 1 m after a few hops). Measured on CMU
-        131_01, 10 % corruption, sliding windows, skip 0/5/8/10 (cold start):
-        120 Hz, 128 frames, hop 16: 29.5/24.5/21.3/19.6 (30.5) iterations, window AJE
-        4.1/4.3/3.7/3.6 (4.4) mm, AJE of the hop newest frames 7.0/7.7/7.7/7.8 (8.5) mm;
-        30 Hz, 64 frames, hop 8: 29.7/24.9/21.5/19.7 (30.7) iterations, window AJE
-        6.5/6.9/6.1/5.9 (6.5) mm, newest frames 7.7/8.9/9.2/9.5 (8.4) mm.
-        Skipping more (15+) costs accuracy on the new frames quickly.
+        extrapolated guess (measured: the solution was lost within a few hops). On CMU 131_01 at 10 %
+        corruption (sliding windows, 120 Hz hop 16 and 30 Hz hop 8), skipping 5-10 steps
+        took fewer iterations at a similar window AJE, the hop's newest frames losing a
+        little as the skip grows. Skipping more (15+) costs accuracy on the new
+        frames quickly.
     """
 
     mode: str = "yang"
@@ -184,7 +172,7 @@ class SolverState:
         Drops the first ``hop`` frames; the ``hop`` new frames at the end repeat the last
         frame's positions (A, N, W^T C) and get zero sparse error and zero multipliers.
         (Constant-velocity extrapolation was tried: a window's last frames are its least
-        constrained, and their velocity extrapolated over a hop put joints ~0.5 m off.)
+        constrained, and their velocity extrapolated over a hop put joints far off.)
         """
         hop = int(hop)
         n_frames = self.n_frames
@@ -253,7 +241,7 @@ def _svt(y: np.ndarray, tau: float) -> np.ndarray:
 
     Computed from the ``S x S`` Gram matrix M^T M = V Sigma^2 V^T (S joints << 3T rows):
     SVT(M) = M V diag(max(sigma - tau, 0) / sigma) V^T. Same result as a thin SVD to
-    ~1e-12 on motion matrices, ~2.5x faster.
+    ~1e-12 on motion matrices, and cheaper.
     """
     n_frames = y.shape[0]
     m = _paper_layout(y)
@@ -383,7 +371,7 @@ def solve(
         Ct = state.Ct - offset
         if state.fresh > 0:
             # New frames start from their own (gap-filled) data, as N^0 = D does in a cold
-            # start; repeating the previous last frame there measured 2x worse on the new frames.
+            # start; repeating the previous last frame there measured worse on the new frames.
             f = slice(n_frames - state.fresh, n_frames)
             filled = np.nan_to_num(interpolate_linear(np.where(obs3, Dc, np.nan), observed)[0])
             A[f], N[f], Ct[f] = filled[f], filled[f], filled[f]

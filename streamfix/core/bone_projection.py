@@ -159,7 +159,7 @@ def projection_inverse_mass(
     error between two measurements of unequal variance. Why: on Kinect v2 a bone's
     length error comes from its noisier end (thumb, hand tip, hand); split evenly, the
     correction carried the hand's jitter into the wrist, shoulders and spine (on
-    Ges04_comehere.csv the projection tripled the shoulders' jitter). Joints of similar
+    Ges04_comehere.csv the projection made the shoulders jitter far more). Joints of similar
     noise keep equal shares: weighting them by estimated scales only moved corrections
     at random (measured on the sensor protocol, whose noise is the same on every joint).
     """

@@ -41,8 +41,8 @@ FRACTION = 0.5
 
 FLOOR_M = 0.03
 """...and beyond this (m): a Kinect hand tip or thumb, 3-7 cm long, jitters by a centimetre
-or more at each end, and the sensor protocol's correlated noise alone put such bones past
-2.5 cm for a sixth of a second about 270 times in its 42 takes (past 3 cm: 90)."""
+or more at each end, and the sensor protocol's correlated noise alone often put such bones
+past 2.5 cm for a sixth of a second in its takes (less often past 3 cm)."""
 
 MIN_RUN_S = 1.0 / 3.0
 """Shortest run (s) of such samples released. Shorter failures are the temporal fit's
@@ -116,7 +116,7 @@ def dislocated_ends(
     k = np.flatnonzero(judged)
     # tracked distal ends only: an inferred hand or foot is the sensor's guess, judged by the
     # frozen-limb stage; released here for its length, a seated user's inferred feet under a
-    # desk (seated_joints.csv) were filled 5 % off their mirrors' lengths, from 2 %
+    # desk (seated_joints.csv) were filled further off their mirrors' lengths
     seen = (conf[:, b[k, 0]] > 0) & (conf[:, b[k, 1]] >= 1.0)
     error = np.abs(point_norms(x[:, b[k, 1]] - x[:, b[k, 0]]) - target[k])  # NaN: an end or the length unknown
     bad = seen & (error > np.maximum(fraction * target[k], floor_m))
@@ -151,8 +151,8 @@ def parent_relative_fill(positions: np.ndarray, released: np.ndarray, observed: 
     Why not the window solver: a released hand or foot hangs from a parent the sensor has
     right (its bone into the parent is checked), and its own motion over a third of a second
     is its parent's plus a turn; the low-rank solve and the PCA bridge it would trigger cost
-    10-20 ms per window, a third of the engine's time on Kinect v2 recordings whose hands
-    fail every few seconds, to place 2-3 joints. ``observed`` ``(T, J)``: the good samples."""
+    much of the engine's time on Kinect v2 recordings whose hands fail every few seconds,
+    to place 2-3 joints. ``observed`` ``(T, J)``: the good samples."""
     x = np.array(positions, dtype=np.float64)
     rel = np.asarray(released, dtype=bool)
     if not rel.any():

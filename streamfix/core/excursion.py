@@ -2,7 +2,7 @@
 
 Not in the papers. A whole limb missing leaves PCA (trained on seconds of history) and
 the prior to guess its pose from the rest of the body; on a nearly still limb that guess
-can wander 10-30 cm where holding the limb is within 2 cm, while a moving limb should
+can wander much further than simply holding the limb would, while a moving limb should
 keep the model's motion. :func:`limit_excursion` shortens each fill's departure from a
 continuity baseline (hold from the last observed sample; linear once the far end is
 seen) to a multiple of the joint's own recent range of motion.

@@ -332,7 +332,7 @@ def savgol(
 def savgol_coefficients(window: int, order: int) -> np.ndarray:
     """``scipy.signal.savgol_coeffs(window, order)`` (smoothing, centred, for a convolution), by
     the same least-squares solve (LAPACK's gelsd through numpy: the same values bit for bit on the
-    windows and orders tested). Why not scipy's: importing scipy.signal takes ~0.4 s, a third of
+    windows and orders tested). Why not scipy's: importing scipy.signal is a large share of
     ``streamfix clean``'s start, for these few coefficients."""
     half = window // 2
     x = np.arange(-half, window - half, dtype=np.float64)[::-1]  # convolution order
@@ -388,7 +388,7 @@ def running_median(
     Away from the edges, one sort of every window (NaN sorts last) and the count ``n`` of its
     observed samples give the median of any missing pattern: the middle sample for odd ``n``,
     the mean of the two middle ones for even ``n`` -- the same values as ``np.median``
-    / ``np.nanmedian`` (bit for bit), at 5-8x their speed on a 60-frame window
+    / ``np.nanmedian`` (bit for bit), and faster on a 60-frame window
     (``nanmedian`` of small arrays goes through masked arrays). With numba installed the
     compiled :func:`streamfix.core.kernels.running_median` (a sorted window per channel updated
     frame by frame, branch-free across channels for wide arrays) gives the same values bit for
@@ -525,7 +525,7 @@ def butterworth(
     nyquist = 0.5 * float(rate_hz)
     if not 0 < cutoff_hz < nyquist:
         return x
-    from scipy.signal import butter, sosfiltfilt  # here: importing scipy.signal costs ~0.4 s (savgol_coefficients)
+    from scipy.signal import butter, sosfiltfilt  # here: importing scipy.signal is slow (savgol_coefficients)
 
     sos = butter(order, cutoff_hz / nyquist, btype="low", output="sos")
     n = x.shape[0]
@@ -549,7 +549,7 @@ def exponential_smoothing(x: np.ndarray, alpha: float, previous: np.ndarray | No
     if len(x) == 0 or alpha == 1.0:
         return x.copy()
     start = x[0] if previous is None else np.asarray(previous, dtype=np.float64)
-    from scipy.signal import lfilter  # here: importing scipy.signal costs ~0.4 s (savgol_coefficients)
+    from scipy.signal import lfilter  # here: importing scipy.signal is slow (savgol_coefficients)
 
     return lfilter([alpha], [1.0, alpha - 1.0], x, axis=0, zi=((1.0 - alpha) * start)[None])[0]
 

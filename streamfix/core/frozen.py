@@ -44,7 +44,7 @@ TWIN_BENDS_M = 2 * RIGID_M
 rigid inferred run to count as a guess: a clear margin above ``RIGID_M``. At a twin just
 above ``RIGID_M`` (a seated leg settling after a move, ``seated_joints.csv``) the decision
 flipped between overlapping windows, which saw different parts of the settling, and the
-released knee swung 50 cm between them; the sensor protocol's moving limbs articulate
+released knee swung far between them; the sensor protocol's moving limbs articulate
 10 mm and more (5th percentile)."""
 
 ARTICULATION_SPAN_S = 0.5

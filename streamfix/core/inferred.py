@@ -27,7 +27,7 @@ __all__ = ["replacement_weight", "tracked_proximity", "DISAGREE_M", "TRACKED_NEA
 DISAGREE_M = (0.10, 0.25)
 """Sample-to-fill distance (m) below which the inferred sample is kept whole, above
 which the fill replaces it; between, a smooth blend. The lower end sits above the
-fills' typical error on a missing limb (the prior's held-out fit is several cm)."""
+fills' typical error on a missing limb (the prior's held-out fit: ``benchmarks/bench_prior.py``)."""
 
 
 TRACKED_NEAR_S = (1.0, 2.0)

@@ -105,8 +105,8 @@ DENSEST_HALF_WIDTH_M = 0.005
 """Half-width (m) of the window whose sample count :func:`densest_mode` maximises. Wide
 enough to weigh a cluster of a sensor's pose-dependent lengths by its samples, narrow
 enough that samples scattered by corruption do not add up to a peak: at 1 cm the paper
-protocol's spikes (20 % of entries) pulled ``serve``'s lengths off and its clean error
-rose by a quarter (``tests/test_e2e_quality.py``); at 3 mm the KERAAL case below went
+protocol's spikes (20 % of entries) pulled ``serve``'s lengths off and raised its clean
+error (``tests/test_e2e_quality.py``); at 3 mm the KERAAL case below went
 back to the smaller cluster (``tests/test_bone_lengths_real.py``)."""
 
 
@@ -159,7 +159,7 @@ def length_mode_with_support(
     ``tolerance_m`` of each estimate. A mode found from a handful of frames can sit on
     two corrupted samples that happen to agree; callers use the support to decide
     whether to trust it (measured on CMU 131 at 20 % corruption: the first 16-frame
-    window of a stream estimated a 0 m bone as 0.217 m from 2 agreeing samples).
+    window of a stream gave a 0 m bone a sizeable length from 2 agreeing samples).
     """
     values = np.asarray(samples, dtype=np.float64)
     if kernels.COMPILED and values.ndim == 2:  # the same values from one sort per column
@@ -178,7 +178,7 @@ TWIN_MAX_RATIO = 2.0
 TWIN_MAX_EXCESS_M = 0.25
 """...and by more than this (m) is no person's: a sensor's failure, not the body's. Loose on
 purpose: Kinect v1's collar bones (UI-PRMD) differ from their twins by up to 2x and 14 cm over
-a stream's first 2 s, and taking the shorter one there cost 0.3 mm of debiased error against
+a stream's first 2 s, and taking the shorter one there raised the debiased error against
 Vicon; a joint read at the wall's depth makes its bone decimetres to metres longer."""
 TWIN_MIN_M = 0.03
 """...unless the twin itself is shorter than this (m): a collapsed twin (an inferred joint put on
@@ -217,8 +217,8 @@ def symmetric_lengths(
     ``lengths`` ``(B,)`` m (NaN = unknown), ``support`` ``(B,)`` samples behind each,
     ``mirror`` ``(B,)`` index of each bone's left/right counterpart (itself for midline
     bones). A bone with at least ``own_support`` samples keeps its own length (real
-    bodies and mocap skeletons are asymmetric by a centimetre or two: pooling always cost
-    0.0006 -> 0.0024 m AJE on CMU 131_01 at 5 %); one with fewer, whose counterpart has
+    bodies and mocap skeletons are asymmetric by a centimetre or two: pooling always raised
+    the AJE on CMU 131_01 at 5 %); one with fewer, whose counterpart has
     at least ``own_support`` and twice as many, takes the support-weighted mean of the pair. A sensor's limb that is mostly *inferred* has few
     trustworthy samples, and the well-seen side fixes it (a seated Kinect user's inferred
     shin otherwise kept a length from 8 frames, 0.53 m against the tracked side's
@@ -267,8 +267,8 @@ def estimate_bone_lengths(
     * ``'mode'`` (default): middle of the shortest length interval holding ``fraction``
       of those frames. Outliers add noise to *both* ends' coordinates, so at 20 % of
       corrupted coordinates ~74 % of frames have a corrupted bone and the median is
-      biased (measured: 5.5 cm mean error on CMU 131_01); the clean frames still form
-      the densest cluster, which the mode finds (measured below 1 mm).
+      biased (measured on CMU 131_01); the clean frames still form the densest
+      cluster, which the mode finds almost exactly (measured there too).
     * ``'median'``: the per-bone median over frames (robust while < 50 % are corrupted).
 
     The window solver's own estimate, for a window with no lengths given. The engine's

@@ -37,7 +37,7 @@ into a single compiled loop over frames and channels:
   calls per frame whenever a joint is carried, which is whenever the sensor has lost one;
 * :func:`live_pose_bias`: the learned sensor bias removed from one frame
   (:func:`streamfix.core.pose_bias.remove_pose_bias` on one frame, rounding apart): the
-  numpy batch function took most of a millisecond there.
+  numpy batch function was slow there.
 
 The numpy functions stay the reference: tests compare each kernel with them on real
 recordings (``tests/test_core_kernels.py``). Callers check :data:`COMPILED` at each
@@ -335,7 +335,7 @@ def _running_median_wide_loop(x, window, out):  # pragma: no cover - compiled
     entered with comparisons and min/max only: the slot q after removing a is
     ``s[q + 1] if s[q] >= a else s[q]`` (r), after inserting b ``min(max(r[q - 1], b), r[q])``.
     Why: the insertion sort's data-dependent loops mispredict most of their time away; these
-    branch-free steps run along contiguous channels, which the compiler vectorises (2-4x on
+    branch-free steps run along contiguous channels, which the compiler vectorises (faster on
     the window cleaner's 75 channels; slower than the sorted loop below ~16 channels). A real
     +inf sample is indistinguishable from an empty slot, which gives the same medians."""
     n_frames, n_ch = x.shape
@@ -950,8 +950,8 @@ _detrended_edges_compiled = _jit(_detrended_edges_loop)
 
 DETRENDED_EDGES_MAX_WINDOW = 9
 """Longest window :func:`detrended_edges` is used for: its medians sort by insertion, which
-beats numpy on the 5-frame median of 30 Hz data (0.03 vs 0.25 ms per call) but not on the
-21 frames of 120 Hz (1.8 vs 0.8 ms: 210 pairwise slopes per channel)."""
+beats numpy on the 5-frame median of 30 Hz data but not on the 21 frames of 120 Hz
+(210 pairwise slopes per channel)."""
 
 
 def detrended_edges(x: np.ndarray, med: np.ndarray, window: int) -> np.ndarray:
@@ -1631,7 +1631,7 @@ def kabsch_rotations(H: np.ndarray) -> np.ndarray:
     """``(N, 3, 3)`` rotations ``R`` maximising ``tr(R^T H_t)`` for ``H`` ``(N, 3, 3)``
     (``H_t = P_t^T Q``: ``R`` minimises ``|P_t R - Q|``): the rotations of
     :func:`streamfix.core.pca_normalise.kabsch_svd`, to rounding, without numpy's per-matrix
-    LAPACK call (several times faster on a few hundred frames). Where the minimiser is not unique (``H`` of rank 1:
+    LAPACK call (faster on a few hundred frames). Where the minimiser is not unique (``H`` of rank 1:
     collinear points) both return one of them, not necessarily the same. An all-zero
     ``H`` gives the identity, a non-finite one NaN. Needs numba (:data:`HAVE_NUMBA`)."""
     if _kabsch_compiled is None:
@@ -1646,8 +1646,8 @@ def kabsch_rotations(H: np.ndarray) -> np.ndarray:
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel now, on tiny inputs.
 
-    A kernel compiles on its first call: seconds the first time after an install, about
-    0.1 s from the cache. A live service calls this before its first frame, so neither
+    A kernel compiles on its first call: slowly the first time after an install, faster
+    from the cache. A live service calls this before its first frame, so neither
     the first live frame nor the first window pays it. A no-op when :data:`COMPILED` is False.
     """
     if not COMPILED:

@@ -28,7 +28,7 @@ def local_poly_numpy(y: np.ndarray, w: np.ndarray, h: int) -> tuple[np.ndarray, 
     Tricube kernel K(k) = (1 - (|k|/(h+1))^3)^3, k = -h..h. The normal equations
     sum_k K w (1, k, k^2)^T (1, k, k^2) a = sum_k K w y (1, k, k^2)^T are built by
     correlations along time (no loop over frames) and solved in closed form (LDL^T),
-    elementwise over (T, C): ~10x cheaper than a batched ``np.linalg.solve`` of 3x3s.
+    elementwise over (T, C): cheaper than a batched ``np.linalg.solve`` of 3x3s.
     Returns ``(fit, support)`` with support = sum_k K(k) w(t+k).
     """
     k = np.arange(-h, h + 1, dtype=np.float64)

@@ -44,10 +44,10 @@ def shrink_untrusted(positions: np.ndarray, observed: np.ndarray, filled: np.nda
     linear interpolation between the gap's ends (hold at a take's edge), and the fill
     becomes ``lin + s (fill - lin)`` with ``s = D^2 / (D^2 + (kappa sigma)^2)``: a model
     that cannot reproduce the samples next to the gap keeps only departures from linear
-    much larger than its own error. Measured on Kinect takes (one limb blanked):
-    seated 3 s leg, whose partners are unrelated jittering joints, sigma 9-33 cm vs
-    D 10-13 cm; a still arm sigma 6-13 cm vs D 1-4 cm; arms moving inside the gap
-    with their hand tip seen sigma 1-4 cm vs D 8-35 cm (kept).
+    much larger than its own error. Measured on Kinect takes (one limb blanked): a
+    seated 3 s leg, whose partners are unrelated jittering joints, and a still arm had
+    sigma as large as D or larger; arms moving inside the gap with their hand tip
+    seen had sigma well below D (kept).
     """
     x = np.asarray(positions, dtype=np.float64)
     obs = np.asarray(observed, dtype=bool)

@@ -53,8 +53,8 @@ Choices the paper leaves open, made here and documented:
   run once per template. With ``n_partners=None`` the template is the paper's: the
   frame's observed joints predict all its missing ones. By default the matrix holds
   one missing joint and the k observed joints whose distance to it varies least in
-  training ("local templates"; on the CMU takes this cuts the 100-frame-gap error
-  3-10x against the whole-body template); k is chosen per joint among
+  training ("local templates"; on the CMU takes this fills 100-frame gaps much
+  closer than the whole-body template); k is chosen per joint among
   ``DEFAULT_PARTNERS = (3, 6)`` by the error on the joint's observed samples
   within 30 frames of its gaps (observed data only, never the gap).
   Coordinates are expressed in the frame of the observed joints (centroid removed,

@@ -19,7 +19,7 @@ __all__ = ["kabsch", "kabsch_svd", "normalise_frames"]
 def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """Rotations ``R`` ``(N, 3, 3)`` minimising ``|P_t R_t - Q|`` for centred ``P`` ``(N, k, 3)``, ``Q`` ``(k, 3)``
     (compiled when :data:`streamfix.core.kernels.COMPILED`: every frame of every template is
-    normalised with one, and the batched SVD was half of a streaming PCA fill's cost)."""
+    normalised with one, and the batched SVD was a large part of a streaming PCA fill's cost)."""
     H = np.swapaxes(P, 1, 2) @ Q                             # (N, 3, 3)
     return kernels.kabsch_rotations(H) if kernels.COMPILED else kabsch_svd(H)
 

@@ -2,7 +2,7 @@
 
 Why not Algorithm 1 alone (issue 2's measured facts): its l1 data term lets E absorb
 only what its optimum says is error, and at heavy corruption (80 %) that optimum is
-far from the truth; on real Kinect data its wavelet term removes only a quarter of the
+far from the truth; on real Kinect data its wavelet term removes little of the
 jitter. The pipeline therefore wraps the solver in robust statistics:
 
 1. **Robust temporal regression** (outlier detection, :mod:`streamfix.core.robust_fit`).
@@ -66,7 +66,7 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    smoothing at ``white_noise_ratio``, none at ``white_noise_ratio_max``, blended
    between), so a window's noisy ratio does not flip it. The blend spans where the two
    kinds overlap: Kinect v1's correlated noise on UI-PRMD reaches up into it (a blend
-   ending lower left about a quarter of those windows smoothed only in part, and their
+   ending lower left many of those windows smoothed only in part, and their
    jitter in the output), exact mocap in short or slow windows reaches down into it
    (smoothing that costs the paper protocol accuracy): gate and window were chosen
    against Vicon on UI-PRMD (``benchmarks/bench_paired.py``) with the paper protocol's
@@ -78,8 +78,8 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    temporal interpolation over long gaps. **Short gaps in time** (``time_gap_s``): a gap
    closed within half a second is each joint's cubic spline through its samples, and the
    solver sees those values as data. The low-rank model describes the window as a whole:
-   a forearm and hand lost for 4 frames of a fast swing came back at their mean pose, half
-   a metre off, where the spline was 5 cm off; over a second or more the spline overshoots
+   a forearm and hand lost for 4 frames of a fast swing came back at their mean pose, far
+   off, where the spline was close; over a second or more the spline overshoots
    and the solver, with the bridge's long-gap fills, does better (measured with limbs and
    single joints dropped for 4-40 frames on the CMU and Xia takes; ``tests/test_short_gaps_and_blackouts.py``).
    The solver's offset from
@@ -90,9 +90,9 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    half second (``open_gap_gain``, ``open_gap_ramp_s``; the streaming engine publishes
    those newest frames, where the unanchored solve jumped tens of centimetres).
    Observed joint-frames keep the robust stage's values. Skipped when nothing is
-   missing: run after outlier removal on complete data the solver changed AJE by
-   -5 % .. +400 % (it only helps a little at 80 %), and run on the raw input from the
-   robust estimate as ``init`` it walks back to its own optimum (0.175 m at 80 %).
+   missing: run after outlier removal on complete data the solver changed AJE from a
+   little better to several times worse (it only helps a little at 80 %), and run on the raw
+   input from the robust estimate as ``init`` it walks back to its own optimum (far off at 80 %).
 5. **Bone-length projection** (:mod:`streamfix.core.bone_projection`). Every bone is pulled to its length (given, or the
    median over the window's confident outlier-free frames), which the paper's model
    does only softly: Jacobi constraint iterations (position-based dynamics,
@@ -100,7 +100,7 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    in proportion to their inverse confidence, so an *inferred* joint moves twice as
    far as a tracked one. Measured against the Gauss-Newton step of Eq. (20) with
    Z2 = 0 (:func:`streamfix.core.bone_projection.project_bone_lengths`, ``projection="gauss_newton"``), which has no
-   line search and left Kinect bone CV at 0.01-0.12 of the input (more steps made it
+   line search and left part of the Kinect bone CV in place (more steps made it
    worse on some files), 50 iterations lower AJE and ABE on every CMU/Xia case tried.
    **Noisy joints take the correction** (:mod:`streamfix.core.bone_projection`): a joint whose
    window residual scale (``joint_noise_scale``) is clearly above the body's typical
@@ -109,7 +109,7 @@ jitter. The pipeline therefore wraps the solver in robust statistics:
    ``projection_smooth_s`` (``smooth_projection``): a steady length correction
    applied along a short bone whose direction jitters would add jitter; samples the
    window filled or replaced keep the exact correction (no sensor jitter behind them,
-   and a smoothed one left a thumb's replaced 4-frame spike at half its length). Exact
+   and a smoothed one left part of a thumb's replaced 4-frame spike). Exact
    samples (mocap) keep equal shares. **Length play on tracked bones**
    (:mod:`streamfix.core.length_tolerance`): a bone between two tracked, precise joints
    keeps its own length, smoothed over ``projection_play_smooth_s``, while that is within
@@ -502,7 +502,7 @@ def clean_window(
                 # nothing left for the solver: the splines fill every missing sample, closed gaps
                 # above and frames with no joint seen below (a dropped frame at the window's edge,
                 # which is no closed gap), so a solve's values would all be thrown away (on a
-                # Kinect file, 600-frame solves for one dropped first frame: 15 % of its cleaning)
+                # Kinect file, 600-frame solves for one dropped first frame: a real share of its cleaning)
                 filled = solve_base
                 info["solve_skipped"] = True
                 out_state = state  # the solver did not run: its warm start carries on
@@ -525,7 +525,7 @@ def clean_window(
             blackout = ~obs.any(axis=1)
             if blackout.any():
                 # a frame with no joint observed is a missing column of the low-rank model,
-                # which nothing in it can recover (the solve left such frames 0.2-0.5 m off);
+                # which nothing in it can recover (the solve left such frames far off);
                 # time can: each joint's cubic spline through its observed frames (also
                 # across short blackouts, where it beats the local quadratic on fast motion)
                 filled[blackout] = interpolate_spline(base, obs, frames=np.flatnonzero(blackout))[0]

@@ -76,7 +76,7 @@ MIN_DEPARTURE_M = 0.25
 """...and it must lie this far (m) along its ray from where its own samples around put it: a
 depth read off the background is decimetres to metres off, while a hand thrown 12 cm down and
 back is off its ray by centimetres, and the dislocated-end stage, which interpolates its offset
-to the wrist across the run, places it better (10 mm against 58 in ``tests/test_dislocated.py``)."""
+to the wrist across the run, places it better (``tests/test_dislocated.py``)."""
 
 SIDEWAYS_RATIO = 0.5
 """A sample whose departure from where it is expected has a part across the ray larger than
@@ -109,13 +109,13 @@ wrists at the wall's depth for most of a take leave both forearms' medians there
 PROVISIONAL_MIN_FRAMES = 1
 """Frames a bone must be seen in before :func:`provisional_lengths` gives it a length: one, as
 samples longer than ``MAX_BONE_M`` make none (at 3, a live stream whose hand was thrown from its
-second frame on passed the throw through for two frames, 0.13-0.15 m of the run's mean error)."""
+second frame on passed the throw through for two frames, much of the run's mean error)."""
 
 PROVISIONAL_FLOOR_M = 0.25
 """``floor_m`` while the lengths are provisional: a median of a stream's first frames is
 rough, and a live path's last output is not settled yet, so only a gross throw (the wall
 is metres behind) is judged; at ``FLOOR_M`` a Kinect v2's hand 4 cm off in its first half
-second (KERAAL, against Vicon) was pushed 16 cm back along its ray."""
+second (KERAAL, against Vicon) was pushed far back along its ray."""
 
 
 def provisional_lengths(lengths: np.ndarray, mirror: np.ndarray | None) -> np.ndarray:

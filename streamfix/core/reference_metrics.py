@@ -15,7 +15,7 @@ what a cleaner changes from what the measurement set-up fixes:
   reference's over a range of lags (frames); its argmax is the output's delay;
 * :func:`slow_error_norm` -- the debiased error's part below a cut-off (zero-phase
   low-pass): a linear zero-lag filter that passes movement below the cut-off passes this
-  error too (the robust smoothers measured beside it leave it within a few per cent);
+  error too (the robust smoothers measured beside it leave it nearly unchanged);
   only a cleaner that knows where the joint should be removes it (a failed limb
   replaced, a sensor's pose-dependent bias learned).
 

@@ -45,7 +45,7 @@ RIGID_SKELETON_QUANTILE = 75.0
 its typical length (unflagged frames) is at most half of ``RIGID_TOLERANCE_M``. A quarter of
 the bones may vary (a limb's worth: a frozen or drifting leg, retargeted hand tips): at the
 90th percentile three such bones of 24 made an exact skeleton look like a depth sensor's, and
-a fast exact arm next to a frozen leg was replaced by the fit (0.3 m off for a frame on a
+a fast exact arm next to a frozen leg was replaced by the fit (far off for a frame on a
 sensor-protocol freeze take); a depth sensor's bones nearly all vary."""
 MIN_REFERENCE_FRAMES = 5
 MIN_REFERENCE_SHARE = 0.25

@@ -1,8 +1,8 @@
 """Medians of NaN-padded arrays, fast on the small arrays the per-window stages use.
 
 ``numpy.nanmedian`` goes through masked arrays when the reduced axis is short (under 600
-samples: every window here), about 1 ms per call on a 60 x 75 array; one sort with NaN
-sorting last and the two middle elements of each column's finite run is some 20x cheaper
+samples: every window here), which is slow on a window's arrays; one sort with NaN
+sorting last and the two middle elements of each column's finite run is much cheaper
 and gives the same values. Arrays in, arrays out.
 """
 from __future__ import annotations

@@ -81,7 +81,7 @@ class SupportConfig:
     upright_min_s: float = 0.2  # ... in at least this many seconds of frames
     # span of the smoother over planted joints (0 = none): a planted leg is a guess (anchored
     # foot, knee by IK from the sensor's hip) with no detail of its own, only the hip's jitter,
-    # so it is smoothed over about a whole window; 1 s left UI-PRMD's lower body 6 % further
+    # so it is smoothed over about a whole window; 1 s left UI-PRMD's lower body further
     # from Vicon and jitterier (benchmarks/bench_paired.py)
     planted_smooth_s: float = 2.5
 
@@ -202,8 +202,8 @@ def plant_supporting_feet(
     # a running median ignores isolated wild samples (spikes, a corrupted coordinate):
     # a floor from raw heights sits on the lowest outliers and makes every foot look lifted.
     # Plain one-sided medians at the window's ends: a slope through a folding leg's samples
-    # extrapolates the fold (detrended edges: UI-PRMD lower body 52.1 -> 52.5 mm, seam 1.03 -> 1.07)
-    # only the hips, ankles and feet are read from it: the other joints' medians were 3/4 of its cost
+    # extrapolates the fold (detrended edges: UI-PRMD lower body error and seam both worse)
+    # only the hips, ankles and feet are read from it: the other joints' medians were most of its cost
     ref = np.full_like(x, np.nan)
     need = np.unique(legs[:, [0, 2, 3]])
     ref[:, need] = running_median(x[:, need], odd_window(cfg.median_s, rate_hz), detrend_edges=False)

@@ -26,8 +26,8 @@ def units_problem(positions: np.ndarray, bones: np.ndarray) -> str | None:
 
     ``bones`` ``(B, 2)``: the skeleton's (parent, child) joints; without bones the median
     over frames of each frame's extent (bounding-box diagonal of its finite joints) is used.
-    A long take is judged on at most :data:`SAMPLE_FRAMES` evenly spaced frames (the whole check cost
-    2 % of cleaning a 10,000-frame file; people's bones are 10x under the limit, millimetres 300x over).
+    A long take is judged on at most :data:`SAMPLE_FRAMES` evenly spaced frames (the whole check had a
+    measurable cost on a long file; people's bones are 10x under the limit, millimetres 300x over).
     """
     x = np.asarray(positions, dtype=np.float64)
     x = x[:: max(1, -(-len(x) // SAMPLE_FRAMES))]  # the step rounded up: never more than SAMPLE_FRAMES

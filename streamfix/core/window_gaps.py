@@ -26,8 +26,8 @@ def fill_short_gaps(positions: np.ndarray, observed: np.ndarray, max_gap_frames:
     neighbours (half-width ``max_gap_frames + 1``: a full gap still has samples on both
     sides of the kernel); one open at the window's edge holds the nearest sample. Why: the
     gaps a stream has most often are single dropped frames the engine synthesised, every
-    joint missing for 1/30 s; solving the whole window's low-rank model for them cost a
-    streamfix clean of a Kinect recording 40 % of its time, and across one or two frames
+    joint missing for 1/30 s; solving the whole window's low-rank model for them was a
+    large share of a streamfix clean of a Kinect recording, and across one or two frames
     the neighbours' curvature says more than the other joints do.
     """
     x = np.asarray(positions, dtype=np.float64)
@@ -51,7 +51,7 @@ def spline_closed_gaps(positions: np.ndarray, observed: np.ndarray,
 
     Why: over a fraction of a second time knows a limb better than the window's low-rank
     model, which put a forearm and hand lost for 4 frames of a fast swing at their mean pose,
-    half a metre off (``tests/test_short_gaps_and_blackouts.py``)."""
+    far off (``tests/test_short_gaps_and_blackouts.py``)."""
     x = np.asarray(positions, dtype=np.float64)
     obs = np.asarray(observed, dtype=bool)
     prev, nxt = neighbour_observations(obs)
@@ -73,7 +73,7 @@ def limit_open_gaps(filled: np.ndarray, obs: np.ndarray, bones: np.ndarray, rate
 
     Why: with no far end, the low-rank solve places a joint that has just vanished from
     the other joints alone, and that placement is not tied to where the joint was a frame
-    before: an arm lost at a walking body's newest frames came out 32-42 cm from where it
+    before: an arm lost at a walking body's newest frames came out far from where it
     had been one frame earlier (CMU 131_01, ``tests/test_open_gaps.py``), and the streaming
     engine's clean output (0.5 s lookahead) blends those newest frames in. Closed gaps are
     the boundary correction's.

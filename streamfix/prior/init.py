@@ -37,7 +37,7 @@ How the other layers call it
   anchor's parent) is observed throughout, no latent fit is run: ``from_canonical`` places
   such a joint from its anchor alone, and the observed anchor is used in place of the
   prior's reconstruction of it (a pose estimator that loses an ear for seconds cost a latent
-  fit every window, more than doubling its stream's cost).
+  fit every window, the larger part of its stream's cost).
 
 D(z*) here is the chord method of ``streamfix.prior.latent``: one decoder-Jacobian call at
 E(Y) and ``CHORD_STEPS`` damped steps on it, the cost that fits the streaming budget. Both
@@ -79,16 +79,16 @@ __all__ = [
 
 # A solver started from the prior begins its penalty ramp (rho_k = eta^k rho0, Algorithm 1
 # lines 15-17) at this multiple of the cold-start rho0 = 1.25/||D||_2, as the solver's own
-# warm start does (it restarts at rho_prev / eta^12, about eta^17 rho0 after a ~29-iteration
-# cold solve). Measured on the held-out windows at test OTP 50 % (benchmarks/bench_prior.py):
-# eta^8 -> 0.79x the cold iterations, eta^16 -> 0.53x, eta^20 -> 0.38x, RMSE within 0.2 cm.
+# warm start does (it restarts at rho_prev / eta^12, well up the ramp a cold solve climbed).
+# Measured on the held-out windows at test OTP 50 % (benchmarks/bench_prior.py): the later
+# the start, the fewer iterations than a cold solve, at about the same RMSE.
 PRIOR_INIT_RHO_FACTOR = 1.3**20
 
 # D(z*) as the bridge and the solver start run it: one decoder-Jacobian call at E(Y), then this many
 # Levenberg-Marquardt steps on that Jacobian (the chord method, one decoder call each) from this initial
 # damping (relative to diag(Jr^T Jr)): the latency budget of a streamed window. More steps on the same
 # Jacobian do not lower the held-out error (less damping raises it); each further Jacobian call (the fit
-# run to convergence) lowers it a little, at about half the budget each (benchmarks/bench_prior.py).
+# run to convergence) lowers it a little, at much of the budget each (benchmarks/bench_prior.py).
 CHORD_STEPS = 1
 CHORD_DAMPING = 0.3
 
@@ -246,7 +246,7 @@ def _estimate(prior: Prior, x: np.ndarray, obs: np.ndarray, rate_hz: float, layo
         if joints is not None and _carried_by_observed_anchors(maps, cobs, joints):
             # the wanted joints (an ear, a hand tip) follow their anchors by from_canonical's rule (anchor
             # + k (anchor - its parent) + d, fitted where the joint was seen): with the anchors observed,
-            # those place them, with no latent fit (12 ms a streamed window) for the prior's copy of them
+            # those place them, with no latent fit for the prior's copy of them
             return _from_canonical(cx, maps, x, obs, joints)
         est = _estimate(prior, cx, cobs, rate_hz, None, method, max_iter)
         if not np.isfinite(est).any():
@@ -340,7 +340,7 @@ def prior_shifted_state(
 
     ``positions``/``observed`` are the new window (T, J, 3) / (T, J) (its last ``hop``
     frames are the new ones). Observed joints of the new frames keep their values, the
-    others come from the prior (``method`` "encode" = D(E(Y)), ~0.6 ms; "latent" = D(z*)).
+    others come from the prior (``method`` "encode" = D(E(Y)), the cheaper; "latent" = D(z*)).
     """
     from dataclasses import replace
 
@@ -375,7 +375,7 @@ def fill_long_gaps(
     Observed samples and shorter gaps are returned untouched (short gaps stay NaN for
     the solver or interpolation to handle). ``estimate`` may pass a precomputed
     ``prior_initial_guess(..., keep_observed=False)`` to avoid a second prior run.
-    ``method``: ``"latent"`` D(z*) (default) or ``"encode"`` D(E(Y)), about 5x cheaper
+    ``method``: ``"latent"`` D(z*) (default) or ``"encode"`` D(E(Y)), much cheaper
     (see ``benchmarks/results/prior.json`` for both costs and accuracies).
     """
     x = np.asarray(positions, dtype=np.float64)

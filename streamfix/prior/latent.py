@@ -89,7 +89,7 @@ def fit_latent(
     ``damping``: initial Levenberg-Marquardt lambda (relative to diag(Jr^T Jr)).
     ``jacobian_steps``: iterations that recompute dD/dz (None = every one); later
     iterations keep the last accepted Jacobian (the chord method: one plain decoder call
-    each, ~20x cheaper than a Jacobian call), which bounds the cost of a window.
+    each, far cheaper than a Jacobian call), which bounds the cost of a window.
     """
     window, observed, single = prior.as_batch(window, observed, "fit_latent")
     y, obs, norms = prior.normalise(window, observed)
@@ -124,7 +124,7 @@ def fit_latent(
         h[:, n_lat:, n_lat:] = counts[:, None, None] * np.eye(3)
         g = np.empty((b, n_par))
         g[:, :n_lat] = ne["jtr"][..., 0]
-        g[:, n_lat:] = np.einsum("bnk->bk", ne["r"].reshape(b, tj, 3))  # (a middle-axis .sum costs 4x more)
+        g[:, n_lat:] = np.einsum("bnk->bk", ne["r"].reshape(b, tj, 3))  # (a middle-axis .sum costs more)
         if latent_reg:
             dz = z - z_start
             cost += latent_reg * (dz * dz).sum(axis=1)

@@ -114,8 +114,8 @@ def _deconv_even_frames(h: torch.Tensor, deconv: nn.ConvTranspose1d, frames: int
 #: frames carry the same information and the held-out D(z*) does not change (benchmarks/bench_prior.py).
 JACOBIAN_FRAME_STEP = 2
 
-#: The exported Jacobian graph runs the products of the tangents with each layer's weights (about nine
-#: tenths of its cost) in 8-bit integers (``train.quantize_tangent_products``): the Jacobian only steers the
+#: The exported Jacobian graph runs the products of the tangents with each layer's weights (most
+#: of its cost) in 8-bit integers (``train.quantize_tangent_products``): the Jacobian only steers the
 #: Levenberg-Marquardt step, which is accepted on the float32 cost, and D(z) itself stays float32.
 JACOBIAN_INT8_TANGENTS = True
 

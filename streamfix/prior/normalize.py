@@ -125,7 +125,7 @@ def _root_trajectory(clean: np.ndarray, observed: np.ndarray, root: int, hips: t
     count = observed.sum(axis=1)
     if not count.any():
         return np.zeros((clean.shape[0], 3))
-    total = np.einsum("tjk->tk", clean)  # the sum over joints (4x cheaper than .sum(axis=1) over the middle axis)
+    total = np.einsum("tjk->tk", clean)  # the sum over joints (cheaper than .sum(axis=1) over the middle axis)
     return _interp_rows(total / np.maximum(count, 1)[:, None], count > 0)
 
 
@@ -139,7 +139,7 @@ def bone_lengths_median(positions: np.ndarray, observed: np.ndarray, bones: np.n
     both = o[:, 0] & o[:, 1]  # (T, B)
     d = p[:, 1] - p[:, 0]
     lengths = np.sqrt(np.einsum("tbk,tbk->tb", d, d))
-    # median over the observed frames of each bone: sort with the unobserved ones last (np.nanmedian is 10x slower)
+    # median over the observed frames of each bone: sort with the unobserved ones last (np.nanmedian is much slower)
     n = both.sum(axis=0)
     if not len(lengths):
         return np.full(bones.shape[0], np.nan)
@@ -187,7 +187,7 @@ def rot_y(theta: float) -> np.ndarray:
 
 
 def _times(y: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """``y @ m`` for (..., 3) rows and a (3, 3) matrix as one matrix product (a stacked matmul costs ~5x more)."""
+    """``y @ m`` for (..., 3) rows and a (3, 3) matrix as one matrix product (a stacked matmul costs more)."""
     return (y.reshape(-1, 3) @ m).reshape(y.shape)
 
 

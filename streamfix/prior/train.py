@@ -244,7 +244,7 @@ def export_onnx(model: TemporalAutoencoder, out_dir: str | Path, stem: str = "ca
     """Export encoder, decoder and decoder-Jacobian with the legacy exporter (``dynamo=False``), batch dynamic.
 
     The decoder graphs use the time-major MatMul form (``model.DecoderMatmul``): the same
-    values as the convolutional decoder, about twice as fast in onnxruntime on one core.
+    values as the convolutional decoder, faster in onnxruntime on one core.
     ``int8_tangents``: the Jacobian graph's tangent products in 8-bit integers
     (``quantize_tangent_products``); False keeps the exact float32 Jacobian.
     """
@@ -366,10 +366,10 @@ def tangent_product_nodes(graph) -> list[str]:
 def quantize_tangent_products(path: str | Path) -> list[str]:
     """Run a decoder-Jacobian graph's tangent products in 8-bit integers, in place; returns the nodes changed.
 
-    The products of the L tangents with each layer's weights (``tangent_product_nodes``) are about
-    nine tenths of the graph's cost on one core. They become onnxruntime's dynamic quantisation
+    The products of the L tangents with each layer's weights (``tangent_product_nodes``) are most
+    of the graph's cost on one core. They become onnxruntime's dynamic quantisation
     (``MatMulInteger``: weights int8 per output channel, tangents uint8 with one scale per call),
-    about half the call's time. dD/dz then carries a few per cent of rounding error (relative,
+    which costs less. dD/dz then carries a few per cent of rounding error (relative,
     Frobenius); D(z), the residual r and the cost stay float32. The Jacobian only steers the
     Levenberg-Marquardt step of the latent fit (its Gram matrix and gradient), and a step is accepted
     on the float32 cost, so the fit keeps its accuracy (``benchmarks/bench_prior.py``).

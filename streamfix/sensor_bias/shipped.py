@@ -36,7 +36,7 @@ def shipped_model(skeleton_name: str) -> PoseBiasModel | None:
 def preload_shipped_models() -> None:
     """Read every shipped model into :func:`shipped_model`'s cache now: ``serve`` calls this
     before it listens, so the first stream of a layout with a model does not read and parse
-    its file on the input loop (8-18 ms here)."""
+    its file on the input loop."""
     for path in sorted(MODELS_DIR.glob("*.npz")):
         shipped_model(path.stem)
 

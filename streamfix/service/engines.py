@@ -172,8 +172,8 @@ def prepare_streamfix_engine(solver_process: bool = False) -> None:
     engine's child (:func:`~streamfix.streaming.solver_process.prepare_solver_process`),
     which warm up beside this process.
 
-    Half a second on the input path (the kernels' cache load alone is ~0.5 s) made the
-    service shed the first 13-37 frames of the first stream from its 50 ms backlog.
+    Doing it on the input path (the kernels' cache load alone outlasts the 50 ms backlog)
+    made the service shed the first frames of the first stream.
     """
     from ..core import kernels
     from ..prior.runtime import load_default_prior
@@ -184,7 +184,7 @@ def prepare_streamfix_engine(solver_process: bool = False) -> None:
         from ..streaming.solver_process import prepare_solver_process
 
         child_ready = prepare_solver_process()
-    default_window_solver()  # imports the engine's solver stack (scipy, pywt: tens of ms)
+    default_window_solver()  # imports the engine's solver stack (scipy, pywt: slow imports)
     import_solver_modules()  # and what each engine's constructor imports (the prior's initialiser, PCA)
     kernels.warm_up()
     try:

@@ -5,7 +5,7 @@ service counts it (``streamfix_limit_hits_total{limit=...}``, labels :data:`LIMI
 logs one rate-limited line and carries on with the rest of its input. The defaults
 bound the memory a hostile or broken producer can make the service hold: the
 streaming engine keeps a few seconds of every tracked body at the stream's rate
-(about 0.6 MB per 25-joint body at 30 Hz: roughly 0.8 kB per joint and Hz), so the
+(its memory grows with the body's joints x rate), so the
 tracked bodies' joints x rate (``max_joint_rate``), with the body and stream counts,
 bound the engines' memory, and the message size
 bounds what decoding one message can allocate.

@@ -1,6 +1,6 @@
 """Imported by the forkserver of :mod:`streamfix.streaming.solver_process` only: the solver
 stack's imports and the compiled kernels, done once there, so that every window-solver child
-forked from it starts warm (~2 s saved per child). The prior is not loaded here: onnxruntime
+forked from it starts warm. The prior is not loaded here: onnxruntime
 starts threads, and a process with threads must not be forked."""
 from __future__ import annotations
 

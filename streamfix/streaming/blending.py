@@ -11,7 +11,7 @@ HANDOVER_S = 0.17  # crossfade at a window hand-over (5 frames at 30 Hz); see ha
 # binomial half-width of the output smoothing: 2 frames at 30 Hz = the 9-tap twiced kernel. Wider
 # than 1 frame since clean_window keeps the median estimator only where it is unbiased
 # (core/pipeline.py, stage 1): the windows where a noisy sensor lost it (UI-PRMD's Kinect v1)
-# took their smoothing from it, and at 1 frame serve's output jitter rose past 2.5x the Vicon's
+# took their smoothing from it, and at 1 frame serve's output jitter rose well past the Vicon's
 OUTPUT_SMOOTH_S = 2.0 / 30.0
 # A joint-frame the windows recovered and placed at least FILL_DISTANCE_M from the sensor's
 # sample (or that had none) is the model's fill, not a measurement: the sensor errors it

@@ -82,7 +82,7 @@ def hop_phase(ordinal: int, hop: int) -> int:
 
     Bodies that appear together would otherwise all schedule their windows on the same
     frame, and the worker solves them one after another: with 12 bodies the last
-    waited 12 solves (clean p99 ~250 ms beyond the lookahead in bench_service). The
+    waited 12 solves (clean latency far beyond the lookahead in bench_service). The
     golden-ratio sequence spreads any number of bodies evenly over the hop, rounded to
     the nearest frame: at serve's 10-frame hop the six bodies a Kinect tracks then get six
     phases (rounding down gave the sixth the first one's, so their windows queued

@@ -53,7 +53,7 @@ Continuity and excursion limit (not in the papers)
 -------------------------------------------------
 A gap still *open* at the window's end (no far end for the solver) is bridged once it
 is ``open_gap_frames(T, rate)`` (W/6, at most 0.5 s) long: left to the low-rank fit, the
-first frames of a limb gap were extrapolated 15-30 cm astray. A fill (every PCA fill, ``EXCURSION_SOURCES``,
+first frames of a limb gap were extrapolated far astray. A fill (every PCA fill, ``EXCURSION_SOURCES``,
 and the prior's fills of the arms, ``PRIOR_LIMITED_LIMBS``) is then kept within
 ``EXCURSION_GAIN`` (0.35) times the joint's own range of motion over the 1 s before the
 gap (RMS distance from its last observed sample) of the continuity baseline: hold from
@@ -125,8 +125,8 @@ After foot support (whose planted legs have their lengths), those samples are pu
 their parent from the joint's offset to it around the run, at the body's bone length, and
 enter the window pipeline as low-confidence observations (``fill_confidence``), flagged
 ``recovered`` (:mod:`streamfix.core.dislocated`). Made missing instead, they sent the window
-to the low-rank solver and the long-gap bridge: a third of the engine's time on the Kinect v2
-recordings, for a KERAAL score within 0.1 mm. Nothing is judged before the engine has the
+to the low-rank solver and the long-gap bridge: much of the engine's time on the Kinect v2
+recordings, for practically the same KERAAL score. Nothing is judged before the engine has the
 body's lengths. ``tests/test_dislocated.py`` measures it on the KERAAL take.
 
 Joints read at the wrong depth put back on their ray (``repair_depth``, on by default)
@@ -210,9 +210,9 @@ far beyond the low-rank fit in a 12 s window as in a 2 s one. With the fractions
 window, a 12 s file window (``streamfix clean --window``) left 1-4 s limb gaps to the fit, which
 placed a walking leg decimetres off (``tests/test_integration_streaming_gaps.py``). The file
 schedule's windows (``streaming.config``) judge gaps as serve's 2 s window does: with 3 s, a
-forearm or shin lost for 0.7-1 s was still the fit's, which put it 11-16 cm off against 6-8 cm
-bridged (limb segments dropped on the CMU and Xia takes), and the sensor protocol's dropped
-and frozen limbs came out a few mm worse (``benchmarks/results/sensor.md``)."""
+forearm or shin lost for 0.7-1 s was still the fit's, which put it further off than bridging
+did (limb segments dropped on the CMU and Xia takes), and the sensor protocol's dropped
+and frozen limbs came out worse (``benchmarks/results/sensor.md``)."""
 BLACKOUT_MIN_FRAMES = 3
 """Runs of this many (or more) frames with fewer than 3 observed joints are bridged."""
 BLACKOUT_JOINTS = 3
@@ -269,7 +269,7 @@ def long_missing_mask(observed: np.ndarray, rate_hz: float, n_frames: int | None
     run = missing_run_lengths(obs)
     long_ = run >= long_gap_frames(T, rate_hz)
     # a run still open at the window's end has no far end for the solver to bridge to:
-    # extrapolating a limb from the low-rank fit goes 15-30 cm astray, so it is bridged
+    # extrapolating a limb from the low-rank fit goes far astray, so it is bridged
     # once it is OPEN_GAP_FRACTION of the window long
     seen_after = np.flipud(np.logical_or.accumulate(np.flipud(obs), axis=0))
     long_ |= ~seen_after & (run >= open_gap_frames(T, rate_hz))
@@ -288,7 +288,7 @@ def closed_blackout_mask(observed: np.ndarray) -> np.ndarray:
     For a skeleton no learned prior knows (marker sets, BVH), the bridge fills these from
     time alone (each joint's cubic spline through the clean history and the window, source
     ``time``) before PCA: with nothing observed in those frames, PCA on the history left CMU
-    marker blackouts (``eval --protocol blackout``) 1.3-5x the spline's error. Where the
+    marker blackouts (``eval --protocol blackout``) well above the spline's error. Where the
     prior knows the skeleton its fill stays: on UI-PRMD (Kinect v1) 0.2-0.5 s blackouts in
     mid-take, it ended closer to Vicon than the spline did. A blackout still open at the
     window's newest frames stays the models' (a spline could only hold the last value), as

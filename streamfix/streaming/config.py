@@ -98,7 +98,7 @@ class EngineConfig:
     consecutive windows share; see :func:`streamfix.streaming.blending.handover_weights`).
     startup_hop: the hop (frames) while a body's first ``window`` frames arrive
     (:func:`streamfix.streaming.blending.next_window_end`); None = ``max(1, hop // 2)``, at most
-    ``hop`` (= no extra windows: the file schedule, whose 9 s lookahead gains nothing from them).
+    ``hop`` (= no extra windows: the file schedule, whose long lookahead gains nothing from them).
     output_smooth_s: half-width (s) of the binomial whose twicing smooths the blended clean
     output where windows found sensor noise (``h`` frames at ``rate_hz`` give a ``4 h + 1``
     tap kernel, :func:`streamfix.core.filters.twiced_binomial_taps`; 0 = none): the

@@ -43,8 +43,8 @@ class Degradation:
         hop, which is their mean time against each one's share. A single window is a noisy
         answer with many bodies: a window's wall time includes the main thread's turns at the
         GIL, and single windows over their 1/30 share of the hop took a threaded engine with 30
-        bodies at 30 Hz on one core to level 2 (37 events in 15 s) while the core was 75 % busy;
-        averaged, level 1 (4 events). With one body it is the last window's time, as before."""
+        bodies at 30 Hz on one core to level 2 while the core still had time to spare;
+        averaged, level 1, far less often. With one body it is the last window's time, as before."""
         if n_bodies <= 1:
             self.solve_s = float(solve_s)
         else:
@@ -56,9 +56,9 @@ class Degradation:
         Overloaded when the worker cannot finish one window per body per hop. Budgets
         scale with the number of tracked bodies ``n_bodies``: ``windows_due`` windows are
         owed every hop, so that many in flight is normal and a body's window may take
-        hop / n_bodies on average (:meth:`observe`). (Measured: an engine-wide "any window
-        in flight" test degraded 12 bodies at 30 Hz to level 3 and skipped 53 windows
-        although the solver used ~40 % of a core.) A level only rises again once windows
+        hop / n_bodies on average (:meth:`observe`). (An engine-wide "any window
+        in flight" test degraded 12 bodies at 30 Hz to level 3 and skipped windows
+        although the solver left most of a core idle.) A level only rises again once windows
         finished or queued since the last change (a stalled worker does not run the level up
         to 3 at once).
         """

@@ -17,7 +17,7 @@ desk, inferred for minutes) is still left alone: with no tracked sample to ancho
 fill guesses worse (on ``seated_joints.csv``, before the twin test, releasing the legs for
 4 s made them jitter more than median + Savitzky-Golay's). The memory is the solver's own, not the
 clean history's recovered samples: those also come from foot support's planted legs, and
-continuing from them released the seated right leg and moved its ankle 1.2 m from the
+continuing from them released the seated right leg and moved its ankle far from the
 sensor's guess.
 
 Arrays: positions ``(T, J, 3)`` metres, masks ``(T, J)`` bool.

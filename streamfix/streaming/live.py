@@ -1,6 +1,6 @@
 """The causal ``live`` fast path: outlier gate, low-pass filter, bone-length projection.
 
-Per body and per frame, all vectorised across joints (microseconds, no solver):
+Per body and per frame, all vectorised across joints (no solver):
 
 0. **Depth along the ray** (on a path built with ``camera_space``, ``repair_depth``): a
    raw sample whose bone is stretched because the sensor read the depth behind it (far
@@ -41,7 +41,7 @@ Per body and per frame, all vectorised across joints (microseconds, no solver):
    ended further from optical motion capture (``project_tracked=True`` moves them too).
    ``propagate=True`` is forward kinematics (exact lengths, lower bone CV on Kinect, but
    a wrong parent drags its subtree: on CMU 131_01 with 20 % corruption the live jitter
-   cut drops from ~6x to ~3x).
+   cut is markedly smaller).
 
 ``tests/test_streaming_ring_live.py`` holds the live output's jitter against the input's on
 CMU 131_01 with entries corrupted by U(+-25 cm). With numba the default chain (this gate,
@@ -96,7 +96,7 @@ class LiveConfig:
     ('theil_sen' gate); project_tracked: the projection moves tracked joints the gate
     accepted too (without propagation it moves only joints the gate replaced or the sensor
     lost: a depth sensor's bones vary by centimetres, and moving its tracked joints onto
-    the robust lengths cost 1-3 mm of debiased error against Vicon on UI-PRMD and KERAAL);
+    the robust lengths raised the debiased error against Vicon on UI-PRMD and KERAAL);
     repair_depth: a raw sample thrown along its camera ray (a depth read off the background,
     :mod:`streamfix.core.ray_depth`) is moved back along it first, on a path built with
     ``camera_space`` (the engine: a depth sensor's or pose estimator's layout);
@@ -415,7 +415,7 @@ class LivePath:
         self._raw_lengths_n += 1
         n = self._raw_lengths_n
         # the median moves slowly: taken again every PROVISIONAL_EVERY frames once a few are in
-        # (each take costs about 0.2 ms, a live frame otherwise 0.1)
+        # (each take costs more than the rest of a live frame)
         if self._provisional is None or n <= 2 * PROVISIONAL_EVERY or n % PROVISIONAL_EVERY == 0:
             self._provisional = ray_depth.provisional_lengths(self._raw_lengths[:n], self._mirror_bones)
         return self._provisional

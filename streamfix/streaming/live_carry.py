@@ -34,7 +34,7 @@ frame for the live topic to carry the window's pose of it: above a depth sensor'
 CONFIRM_S = 0.1
 """... on each of the window's newest frames this long (s): a verdict on a window's last frame
 or two is its least sure. On KERAAL an arm the sensor had right, flung up 19 cm in one frame,
-was an outlier of the window's last two frames only, and holding it there left it 0.7 m behind."""
+was an outlier of the window's last two frames only, and holding it there left it far behind."""
 CROSSFADE_S = 0.1
 """A joint taken or let go moves between the live path's value and the carried one over this
 long (s), linearly: a window's verdict arrives all at once, every hop."""

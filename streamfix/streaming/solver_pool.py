@@ -3,7 +3,7 @@
 ``serve`` runs one :class:`~streamfix.streaming.engine.StreamEngine` per input stream. With
 a solver thread per engine, five streams on one core meant five CPU-bound threads
 time-slicing that core and trading the GIL with the input thread: every window took
-about five times its own solve time to finish, and the live path waited behind them.
+several times its own solve time to finish, and the live path waited behind them.
 One first-in-first-out queue served by as many threads as the process has CPUs solves
 windows in the order they were scheduled (the order their frames fall due), each at
 full speed, and leaves the input thread a single contender for the GIL per core

@@ -5,7 +5,7 @@ Why
 A threaded :class:`~streamfix.streaming.engine.StreamEngine` solves its windows on a
 worker thread, but the solver's numpy code holds the GIL for most of its run, so the
 ``live`` path (on the input thread) waits behind it: with a dozen bodies on one core the
-live frames' p99 grows from a few to tens of milliseconds (issue 13). Here the solver
+live frames' p99 grows many times over (issue 13). Here the solver
 runs in a long-lived child process; the worker thread sends the window to it and waits
 on a pipe with the GIL released, and the operating system's scheduler, not the GIL's
 switch interval, shares the core between the input thread and the solve.
@@ -34,8 +34,8 @@ How children start
 ------------------
 Never by a plain ``fork`` of the service (it has threads and ZeroMQ sockets): children
 come from multiprocessing's *forkserver*, a clean process started once per service that
-imports the solver stack and compiles the kernels (:mod:`._solver_preload`, ~2 s), so a
-child forks from it already warm and is ready in a fraction of a second (it still loads
+imports the solver stack and compiles the kernels (:mod:`._solver_preload`), so a
+child forks from it already warm and is ready far sooner (it still loads
 the prior and builds its solver). :func:`prepare_solver_process` starts the forkserver and
 one spare child before the first frame arrives; the first engine takes that spare.
 """
@@ -56,7 +56,7 @@ __all__ = ["ProcessWindowSolver", "SolverProcessError", "prepare_solver_process"
 
 DEFAULT_TIMEOUT_S = 5.0
 """Seconds a window may take in the child before it is declared stalled (a window
-normally takes tens of milliseconds; the engine abandons a stalled window after
+normally takes a small fraction of this; the engine abandons a stalled window after
 ``max_clean_delay_s`` on its own, this frees the worker thread for the next one)."""
 STARTUP_TIMEOUT_S = 60.0
 """Seconds a new child may take to be ready (a cold forkserver imports and compiles)."""

@@ -72,7 +72,7 @@ def wants(solver: WindowSolver, flag: str) -> bool:
 def import_solver_modules() -> None:
     """Import the modules the default solver imports lazily inside its windows (the prior's
     initialiser and latent fit, the swap, support, jump and dislocated-limb stages, PCA's
-    fill): tens of ms that an import would otherwise spend holding the GIL, and the
+    fill): time that an import would otherwise spend holding the GIL, and the
     interpreter's import lock, in a solver thread the first time a window needs one, while
     the live path waits (``tests/test_window_solvers_preload.py`` checks that a stream's
     windows import nothing after this). Loads no model."""
