@@ -227,3 +227,25 @@ def test_blackout_fill_is_no_worse_than_the_cubic_spline_on_real_markers(take_85
     pca, spline, eq16 = (float(np.mean(errs[k])) for k in ("pca", "spline", "eq16"))
     # the blend beats both of its parts (each alone is within a few % of the other here)
     assert pca <= 0.96 * min(spline, eq16), (pca, spline, eq16)
+
+
+def test_template_groups_are_numpys_unique_rows():
+    """The local templates' queries grouped by packed rows: the same groups (and each group's
+    first query) as np.unique over rows, whatever their order."""
+    from streamfix.core.pca_gapfill import _template_groups
+
+    rng = np.random.default_rng(3)
+    predictors = rng.random((4000, 68)) < 0.05
+    predictors[::7] = predictors[3]  # repeated patterns, as gap frames of one template give
+    target = rng.integers(0, 68, 4000)
+    target[::7] = 11
+    first, inverse = _template_groups(predictors, target)
+    key = np.hstack([predictors, target[:, None]])
+    _, ref_first, ref_inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    ref_inverse = ref_inverse.ravel()
+    assert len(first) == len(ref_first)
+    assert np.array_equal(key[first[inverse]], key)  # every query's group holds its own row
+    # the same partition: a group here is a group there
+    pairs = set(zip(inverse.tolist(), ref_inverse.tolist()))
+    assert len(pairs) == len(first)
+    assert sorted(first.tolist()) == sorted(ref_first.tolist())

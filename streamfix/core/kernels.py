@@ -61,7 +61,7 @@ __all__ = [
     "pbd_constraints", "project_bone_lengths_pbd",
     "gauss_newton_update", "robust_temporal_fit", "theil_sen_line", "bone_spread_deviations",
     "shorth_mode", "length_mode_with_support", "live_step", "kabsch_rotations", "warm_up",
-    "live_pose_bias", "live_carry",
+    "live_pose_bias", "live_carry", "pair_distances",
 ]
 
 try:  # optional at runtime: the numpy references are used without it
@@ -1643,6 +1643,47 @@ def kabsch_rotations(H: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- warm-up
+# --------------------------------------------------------------------------- marker pair distances
+def _pair_distances_loop(xt, ia, ib, out):  # pragma: no cover - compiled
+    """``out[p, t]`` = the length of ``xt[ia[p], :, t] - xt[ib[p], :, t]`` (``xt`` ``(J, 3, T)``), a NaN
+    coordinate difference taken as 0, the squares summed x, y, z in that order."""
+    n_frames = xt.shape[2]
+    for p in range(ia.shape[0]):
+        a = ia[p]
+        b = ib[p]
+        for t in range(n_frames):
+            d0 = xt[a, 0, t] - xt[b, 0, t]
+            d1 = xt[a, 1, t] - xt[b, 1, t]
+            d2 = xt[a, 2, t] - xt[b, 2, t]
+            if d0 != d0:
+                d0 = 0.0
+            if d1 != d1:
+                d1 = 0.0
+            if d2 != d2:
+                d2 = 0.0
+            out[p, t] = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+
+
+_pair_distances_compiled = _jit(_pair_distances_loop)
+
+
+def pair_distances(x: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """:func:`streamfix.core.rigid_pairs.pair_distances_numpy` compiled, bit for bit and in the same
+    memory order: the distance (m) of each marker pair ``(ia[p], ib[p])`` in every frame of ``x``
+    ``(T, J, 3)``, ``(T, P)``. Why: the numpy reference gathers a ``(P, T, 3)`` array of
+    differences, a take's worth for each of the thousands of pairs of an optical marker set.
+    Needs numba (:data:`HAVE_NUMBA`)."""
+    if _pair_distances_compiled is None:
+        raise RuntimeError("streamfix.core.kernels.pair_distances needs numba; use streamfix.core.rigid_pairs'")
+    xt = np.ascontiguousarray(np.asarray(x, dtype=np.float64).transpose(1, 2, 0))  # each coordinate's frames in a row
+    ia = np.ascontiguousarray(ia, dtype=np.intp)
+    ib = np.ascontiguousarray(ib, dtype=np.intp)
+    out = np.empty((len(ia), xt.shape[2]))
+    if out.size:
+        _pair_distances_compiled(xt, ia, ib, out)
+    return out.T
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel now, on tiny inputs.
 
@@ -1669,6 +1710,7 @@ def warm_up() -> None:
     shorth_mode(x[:, :, 0], 0.5)
     length_mode_with_support(x[:, :, 0], 0.01, 0.005, 0.02)
     kabsch_rotations(finite)
+    pair_distances(x, np.array([0, 0], dtype=np.intp), np.array([1, 2], dtype=np.intp))
     pi, pj = (np.ascontiguousarray(a) for a in np.triu_indices(7, 1))
     theil_sen_line(x[:7], np.arange(7.0), pi, pj)
     state = (np.full((3, 3), np.nan), np.zeros((3, 3)), np.zeros(3), np.zeros(3, dtype=bool))

@@ -100,7 +100,13 @@ from .pca_pieces import fill_gaps_pieces
 from .pca_blackouts import blackout_weights, eq16_basis, eq16_estimate, fill_blackouts
 from .pca_estimators import _eq4_from_grams, eq4_estimate, eq8_estimate
 from .pca_training import DEFAULT_ENERGY, TrainingSet, _as_training, _observed_mask, choose_rank
-from .rigid_pairs import estimate_rigid_pairs, pair_distance_plausibility, pair_distance_ranges, project_pair_distances
+from .rigid_pairs import (
+    estimate_rigid_pairs,
+    pair_distance_plausibility,
+    pair_distance_ranges,
+    pair_distances,
+    project_pair_distances,
+)
 
 __all__ = [
     "DEFAULT_ENERGY",
@@ -338,6 +344,19 @@ def fill_gaps(
     return out, filled
 
 
+def _template_groups(predictors: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Queries with the same template: ``predictors`` ``(N, J)`` bool (the partners observed) and
+    ``target`` ``(N,)`` (the joint estimated). Returns ``(first, inverse)``: each group's first
+    query and each query's group. Each row is packed into bytes and the rows compared as such:
+    ``np.unique(axis=0)`` compares them element by element, which dominated fills with many gap
+    patterns. The groups' order is not ``np.unique(axis=0)``'s; the templates are independent."""
+    packed = np.concatenate([np.packbits(predictors, axis=1),
+                             np.asarray(target, dtype=np.int64)[:, None].view(np.uint8)], axis=1)
+    rows = np.ascontiguousarray(packed).view(np.dtype((np.void, packed.shape[1]))).ravel()
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    return first, inverse.ravel()
+
+
 def _local_estimates(x, obs, qt, qj, tr, tr_obs, rank, k, min_observed_joints, kw, min_frames, optional=None,
                      pt=None):
     """Eq. (1)-(4) estimates ``(N, 3)`` of joint ``qj`` at frame ``qt`` from its ``k`` most
@@ -353,14 +372,12 @@ def _local_estimates(x, obs, qt, qj, tr, tr_obs, rank, k, min_observed_joints, k
     avail &= np.cumsum(avail, axis=1) <= k
     q_pred = np.zeros((qt.size, J), dtype=bool)
     q_pred[np.repeat(np.arange(qt.size), J - 1), rank[qj].ravel()] = avail.ravel()
-    ok = np.flatnonzero(q_pred.sum(axis=1) >= min(min_observed_joints, k))
+    ok = ok_all = np.flatnonzero(q_pred.sum(axis=1) >= min(min_observed_joints, k))
     if ok.size == 0:
         return est_all
-    key = np.hstack([q_pred[ok], qj[ok, None]])
-    keys, inv = np.unique(key, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    first, inv = _template_groups(q_pred[ok], qj[ok])
     if optional is not None:
-        needed = np.zeros(keys.shape[0], dtype=bool)
+        needed = np.zeros(len(first), dtype=bool)
         needed[inv[~optional[ok]]] = True
         keep = needed[inv]
         ok, inv = ok[keep], inv[keep]
@@ -369,9 +386,9 @@ def _local_estimates(x, obs, qt, qj, tr, tr_obs, rank, k, min_observed_joints, k
         sel = ok[inv == p]
         sel = sel[np.argsort(qt[sel], kind="stable")]
         frames = qt[sel]
-        pat = keys[p, :J].astype(bool)
+        pat = q_pred[ok_all[first[p]]]
         tgt = np.zeros(J, dtype=bool)
-        tgt[keys[p, J]] = True
+        tgt[qj[ok_all[first[p]]]] = True
         lo, hi = max(frames[0] - ctx // 2, 0), min(frames[-1] + ctx // 2 + 1, T_len)
         near = np.arange(lo, hi)
         near = near[obs[near][:, pat].all(axis=1)]
@@ -454,18 +471,16 @@ def _partner_ranking(tr: np.ndarray, tr_obs: np.ndarray, min_common: float = 0.1
     in training (std, metres, over frames where both are seen). ``(J, J-1)`` indices."""
     J = tr.shape[1]
     sub = slice(None, None, max(tr.shape[0] // 4000, 1))
-    # joints first, frames last: gathering whole rows of frames per pair, not 3 numbers per frame
-    x = np.ascontiguousarray(np.moveaxis(tr[sub], 0, -1))  # (J, 3, T)
+    frames = tr[sub]
     o = np.ascontiguousarray(tr_obs[sub].T)                # (J, T)
     ia, ib = np.triu_indices(J, 1)
     both = o[ia] & o[ib]                                     # (pairs, T)
-    diff = np.nan_to_num((x[:, None] - x[None])[ia, ib])   # x[ia] - x[ib], faster (measured)
-    d = np.sqrt(np.einsum("pkt,pkt->pt", diff, diff))
+    d = pair_distances(frames, ia, ib).T                     # (pairs, T), C-contiguous
     cnt = both.sum(axis=1)
     c = np.maximum(cnt, 1)
     mean = (d * both).sum(axis=1) / c
     sd = np.sqrt(((d - mean[:, None]) ** 2 * both).sum(axis=1) / c)
-    sd = np.where(cnt >= max(min_common * x.shape[2], 10), sd, 1e6 - cnt)  # rarely seen: last
+    sd = np.where(cnt >= max(min_common * frames.shape[0], 10), sd, 1e6 - cnt)  # rarely seen: last
     S = np.full((J, J), np.inf)
     S[ia, ib] = sd
     S[ib, ia] = sd

@@ -11,16 +11,31 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
 from .pca_training import _observed_mask
 from .points import finite_points, point_norms
 
-__all__ = ["pair_distance_spread", "estimate_rigid_pairs", "rigid_neighbours", "pair_distance_ranges",
+__all__ = ["pair_distances", "pair_distances_numpy", "pair_distance_spread", "estimate_rigid_pairs", "rigid_neighbours", "pair_distance_ranges",
            "project_pair_distances", "pair_distance_plausibility"]
 
 
 SPREAD_CHUNK_FRAMES = 4096
 """Frames per chunk of :func:`pair_distance_spread`: 4096 frames of 41 markers' 820 pairs
 hold 80 MB of differences; a 10-minute take at once held 4 GB."""
+
+
+def pair_distances_numpy(x: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """Distance (m) of each marker pair ``(ia[p], ib[p])`` in every frame of ``x`` ``(T, J, 3)``,
+    a NaN coordinate difference counting as 0: ``(T, P)``, stored pair by pair (its transpose is
+    C-contiguous; numpy's sums over frames depend on that order). The numpy reference of
+    :func:`streamfix.core.kernels.pair_distances`."""
+    xt = np.asarray(x, dtype=np.float64).transpose(1, 0, 2)   # (J, T, 3)
+    return point_norms(np.nan_to_num(xt[ia] - xt[ib])).T
+
+
+def pair_distances(x: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """:func:`pair_distances_numpy`, compiled when :data:`streamfix.core.kernels.COMPILED` (same values)."""
+    return (kernels.pair_distances if kernels.COMPILED else pair_distances_numpy)(x, ia, ib)
 
 
 def pair_distance_spread(positions: np.ndarray, observed: np.ndarray | None = None,
@@ -42,7 +57,7 @@ def pair_distance_spread(positions: np.ndarray, observed: np.ndarray | None = No
     for a in range(0, T_len, SPREAD_CHUNK_FRAMES):
         c = slice(a, a + SPREAD_CHUNK_FRAMES)
         both = obs[c, ia] & obs[c, ib]                       # (t, P)
-        d = point_norms(np.nan_to_num(x[c, ia] - x[c, ib]))
+        d = pair_distances(x[c], ia, ib)
         n = both.sum(axis=0)
         if shift is None:
             shift = (d * both).sum(axis=0) / np.maximum(n, 1)
