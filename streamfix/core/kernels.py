@@ -1655,11 +1655,11 @@ def _pair_distances_loop(xt, ia, ib, out):  # pragma: no cover - compiled
             d0 = xt[a, 0, t] - xt[b, 0, t]
             d1 = xt[a, 1, t] - xt[b, 1, t]
             d2 = xt[a, 2, t] - xt[b, 2, t]
-            if d0 != d0:
+            if np.isnan(d0):
                 d0 = 0.0
-            if d1 != d1:
+            if np.isnan(d1):
                 d1 = 0.0
-            if d2 != d2:
+            if np.isnan(d2):
                 d2 = 0.0
             out[p, t] = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
 
