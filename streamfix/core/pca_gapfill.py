@@ -372,23 +372,28 @@ def _local_estimates(x, obs, qt, qj, tr, tr_obs, rank, k, min_observed_joints, k
     avail &= np.cumsum(avail, axis=1) <= k
     q_pred = np.zeros((qt.size, J), dtype=bool)
     q_pred[np.repeat(np.arange(qt.size), J - 1), rank[qj].ravel()] = avail.ravel()
-    ok = ok_all = np.flatnonzero(q_pred.sum(axis=1) >= min(min_observed_joints, k))
+    ok = np.flatnonzero(q_pred.sum(axis=1) >= min(min_observed_joints, k))
     if ok.size == 0:
         return est_all
     first, inv = _template_groups(q_pred[ok], qj[ok])
+    rep = ok[first]  # each template's first query: its partners and target
     if optional is not None:
         needed = np.zeros(len(first), dtype=bool)
         needed[inv[~optional[ok]]] = True
         keep = needed[inv]
         ok, inv = ok[keep], inv[keep]
     ctx = kw["context_frames"]
-    for p in np.unique(inv):  # one template per (target joint, observed partners)
-        sel = ok[inv == p]
+    # one template per (target joint, observed partners); each one's queries in their order in
+    # ``ok``, from one stable sort rather than a scan of every query per template
+    order = np.argsort(inv, kind="stable")
+    groups, starts = np.unique(inv[order], return_index=True)
+    for p, members in zip(groups, np.split(order, starts[1:])):
+        sel = ok[members]
         sel = sel[np.argsort(qt[sel], kind="stable")]
         frames = qt[sel]
-        pat = q_pred[ok_all[first[p]]]
+        pat = q_pred[rep[p]]
         tgt = np.zeros(J, dtype=bool)
-        tgt[qj[ok_all[first[p]]]] = True
+        tgt[qj[rep[p]]] = True
         lo, hi = max(frames[0] - ctx // 2, 0), min(frames[-1] + ctx // 2 + 1, T_len)
         near = np.arange(lo, hi)
         near = near[obs[near][:, pat].all(axis=1)]

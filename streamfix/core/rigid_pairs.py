@@ -15,8 +15,8 @@ from . import kernels
 from .pca_training import _observed_mask
 from .points import finite_points, point_norms
 
-__all__ = ["pair_distances", "pair_distances_numpy", "pair_distance_spread", "estimate_rigid_pairs", "rigid_neighbours", "pair_distance_ranges",
-           "project_pair_distances", "pair_distance_plausibility"]
+__all__ = ["pair_distances", "pair_distances_numpy", "pair_distance_spread", "estimate_rigid_pairs", "rigid_neighbours",
+           "pair_distance_ranges", "project_pair_distances", "pair_distance_plausibility"]
 
 
 SPREAD_CHUNK_FRAMES = 4096
